@@ -1,0 +1,1 @@
+"""Manipulation service: 4-DOF arm kinematics, trajectories, gripper logic and grasp primitives."""

@@ -1,0 +1,120 @@
+"""Gripper commands and grasp detection from finger gap and effort.
+
+A real parallel gripper reports only its finger opening and its motor effort. With a
+force-limited position loop (what the actuator layer implements) closing on an object
+stalls the fingers at the object's width with the effort saturated at the commanded force
+limit; closing on nothing drives the gap to the closed stop with the effort falling back
+to ~0. So after a close command, once the gap has settled:
+
+* ``HOLDING``: gap above ``empty_gap`` and effort at least ``hold_effort_frac`` of the
+  force limit;
+* ``EMPTY``: gap at or below ``empty_gap`` (fingers met), or no effort;
+
+and while carrying, ``LOST`` when the gap collapses by more than ``slip_gap`` from the
+width measured at grasp time or below ``empty_gap``, or the effort stays below
+``lost_effort_frac`` of the limit for ``lost_debounce`` seconds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import StrEnum
+
+__all__ = ["GripState", "GripperConfig", "GraspMonitor"]
+
+
+@dataclass(frozen=True)
+class GripperConfig:
+    """Gripper thresholds (section ``[gripper]`` of configs/manipulation.toml)."""
+
+    open_gap: float = 0.08
+    close_gap: float = 0.0
+    max_force: float = 25.0
+    empty_gap: float = 0.004
+    settle_speed: float = 0.005
+    settle_time: float = 0.15
+    close_timeout: float = 2.0
+    hold_effort_frac: float = 0.5
+    lost_effort_frac: float = 0.2
+    slip_gap: float = 0.006
+    lost_debounce: float = 0.1
+
+
+class GripState(StrEnum):
+    """What the gripper believes about its contents."""
+
+    OPEN = "open"
+    CLOSING = "closing"
+    HOLDING = "holding"
+    EMPTY = "empty"
+    LOST = "lost"
+
+
+class GraspMonitor:
+    """Classifies holding / empty / lost from ``(time, gap, effort)`` samples."""
+
+    def __init__(self, config: GripperConfig) -> None:
+        self.cfg = config
+        self.state = GripState.OPEN
+        self.max_force = config.max_force
+        self.grasp_gap: float | None = None
+        self._t_cmd = 0.0
+        self._last: tuple[float, float] | None = None
+        self._settled_since: float | None = None
+        self._weak_since: float | None = None
+
+    def command_open(self, t: float) -> tuple[float, float]:
+        """Returns the ``(gap, max_force)`` of an open command and resets detection."""
+        self.state = GripState.OPEN
+        self.grasp_gap = None
+        self._t_cmd = t
+        return self.cfg.open_gap, self.cfg.max_force
+
+    def command_close(self, t: float, max_force: float | None = None) -> tuple[float, float]:
+        """Returns the ``(gap, max_force)`` of a force-limited close command."""
+        self.max_force = self.cfg.max_force if max_force is None else float(max_force)
+        self.state = GripState.CLOSING
+        self.grasp_gap = None
+        self._t_cmd = t
+        self._settled_since = None
+        self._weak_since = None
+        return self.cfg.close_gap, self.max_force
+
+    def update(self, t: float, gap: float, effort: float) -> GripState:
+        """Feeds one sample; returns the (possibly new) state."""
+        cfg = self.cfg
+        speed = 0.0
+        if self._last is not None and t > self._last[0]:
+            speed = abs(gap - self._last[1]) / (t - self._last[0])
+        self._last = (t, gap)
+        eff = abs(effort)
+        if self.state is GripState.CLOSING:
+            if speed < cfg.settle_speed:
+                if self._settled_since is None:
+                    self._settled_since = t
+            else:
+                self._settled_since = None
+            settled = self._settled_since is not None and t - self._settled_since >= cfg.settle_time
+            if settled or t - self._t_cmd >= cfg.close_timeout:
+                if gap > cfg.empty_gap and eff >= cfg.hold_effort_frac * self.max_force:
+                    self.state = GripState.HOLDING
+                    self.grasp_gap = gap
+                else:
+                    self.state = GripState.EMPTY
+        elif self.state is GripState.HOLDING:
+            assert self.grasp_gap is not None
+            if gap <= cfg.empty_gap or gap < self.grasp_gap - cfg.slip_gap:
+                self.state = GripState.LOST
+            elif eff < cfg.lost_effort_frac * self.max_force:
+                if self._weak_since is None:
+                    self._weak_since = t
+                if t - self._weak_since >= cfg.lost_debounce:
+                    self.state = GripState.LOST
+            else:
+                self._weak_since = None
+        return self.state
+
+    @property
+    def holding(self) -> bool:
+        """True while an object is detected between the fingers."""
+        return self.state is GripState.HOLDING
