@@ -1,0 +1,409 @@
+"""`quadmanip up`: a Zenoh router plus the configured services as child processes.
+
+Why a launcher of our own instead of a process manager: a developer wants one command that
+starts the stack on a laptop, interleaves the logs (each line prefixed with the child's name),
+and tears everything down on Ctrl-C without leaving a stray process holding a Zenoh port.
+
+Guarantees:
+- every child runs in its own process group, so the terminal's Ctrl-C reaches only the
+  launcher, which stops the services first (they close their sessions while the router is
+  still up) and the router last: SIGTERM, then SIGKILL to the whole group after
+  ``stop_grace_s``; exit within ``stop_grace_s + 0.5`` s of SIGTERM;
+- children get ``PR_SET_PDEATHSIG`` (via ``QM_PARENT_PID``, see ``quadmanip.cli``), so even a
+  SIGKILLed launcher leaves no orphans on Linux;
+- a child that dies on its own is reported by name, the rest are stopped, and the exit code
+  is non-zero (``EXIT_CHILD_DIED``).
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import TextIO
+
+from quadmanip import services_registry
+from quadmanip.common.config import load_config
+
+EXIT_OK = 0
+EXIT_CHILD_DIED = 1
+EXIT_USAGE = 2
+
+
+@dataclass(frozen=True)
+class LaunchConfig:
+    """Contents of ``configs/launch.toml``."""
+
+    router: bool = True
+    listen: str = "tcp/127.0.0.1:7447"
+    services: tuple[str, ...] = ()
+    stop_grace_s: float = 2.0
+    router_wait_s: float = 10.0
+    service_args: dict[str, list[str]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.stop_grace_s <= 10.0:
+            raise ValueError("stop_grace_s must be in (0, 10]")
+        if self.router_wait_s <= 0.0:
+            raise ValueError("router_wait_s must be positive")
+        parse_endpoint(self.listen)
+
+
+def load_launch_config(name_or_path: str = "launch") -> LaunchConfig:
+    """Load the launch configuration (strict: unknown keys are errors)."""
+    return load_config(LaunchConfig, name_or_path)
+
+
+def parse_endpoint(endpoint: str) -> tuple[str, str, int]:
+    """Split a Zenoh endpoint ``tcp/host:port`` into (protocol, host, port)."""
+    proto, sep, rest = endpoint.partition("/")
+    host, colon, port = rest.rpartition(":")
+    if not sep or not colon or not host or not port.isdigit():
+        raise ValueError(f"bad endpoint {endpoint!r}: want e.g. 'tcp/127.0.0.1:7447'")
+    return proto, host.strip("[]"), int(port)
+
+
+def connect_endpoint(listen: str) -> str:
+    """The endpoint local children should connect to when the router listens on ``listen``.
+
+    A wildcard listen address (0.0.0.0, ::) is not connectable; use loopback instead.
+    """
+    proto, host, port = parse_endpoint(listen)
+    if host in ("0.0.0.0", "::", ""):
+        host = "127.0.0.1"
+    return f"{proto}/{host}:{port}"
+
+
+def free_endpoint(host: str = "127.0.0.1") -> str:
+    """A TCP endpoint on a port that is free right now (for tests and throwaway stacks)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        port = s.getsockname()[1]
+    return f"tcp/{host}:{port}"
+
+
+def wait_for_port(endpoint: str, timeout_s: float, alive: Callable[[], bool]) -> bool:
+    """Poll until something accepts TCP connections on ``endpoint`` (or ``alive()`` is False)."""
+    _, host, port = parse_endpoint(endpoint)
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if not alive():
+            return False
+        try:
+            with socket.create_connection((host, port), timeout=0.2):
+                return True
+        except OSError:
+            time.sleep(0.05)
+    return False
+
+
+def cli_command(*args: str) -> list[str]:
+    """Command line that runs ``quadmanip <args>`` with this interpreter (no PATH lookup)."""
+    return [sys.executable, "-m", "quadmanip.cli", *args]
+
+
+def describe_exit(code: int) -> str:
+    """Human wording for a Popen return code (negative = killed by a signal)."""
+    if code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exited with code {code}"
+
+
+@dataclass
+class Child:
+    """One child process of the launcher."""
+
+    name: str
+    argv: list[str]
+    env: dict[str, str]
+    proc: subprocess.Popen[bytes] | None = None
+    reader: threading.Thread | None = None
+
+    @property
+    def pid(self) -> int | None:
+        return None if self.proc is None else self.proc.pid
+
+    def running(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+
+class Launcher:
+    """Starts children in order, multiplexes their output, and stops them all.
+
+    Spawn and stop from one thread only (the main thread): ``PR_SET_PDEATHSIG`` fires when
+    the *thread* that forked a child exits.
+    """
+
+    def __init__(
+        self,
+        *,
+        listen: str | None,
+        services: Sequence[str],
+        service_args: dict[str, list[str]] | None = None,
+        robot: str | None = None,
+        stop_grace_s: float = 2.0,
+        router_wait_s: float = 10.0,
+        out: TextIO | None = None,
+        connect: str | None = None,
+    ) -> None:
+        self.listen = listen
+        self.connect = connect_endpoint(listen) if listen else connect
+        self.services = list(services)
+        self.service_args = dict(service_args or {})
+        self.robot = robot
+        self.stop_grace_s = stop_grace_s
+        self.router_wait_s = router_wait_s
+        self.out = out if out is not None else sys.stdout
+        self.children: list[Child] = []
+        self._write_lock = threading.Lock()
+        self._stopping = False
+        width = max([len(n) for n in [*self.services, "router", "up"]])
+        self._width = width
+
+    # ----------------------------------------------------------------- output
+    def log(self, text: str, name: str = "up") -> None:
+        """Write one prefixed line to the launcher's output."""
+        with self._write_lock:
+            try:
+                self.out.write(f"{name:>{self._width}} | {text}\n")
+                self.out.flush()
+            except (ValueError, OSError):
+                pass  # output closed (e.g. broken pipe): keep supervising anyway
+
+    def _pump(self, child: Child) -> None:
+        assert child.proc is not None and child.proc.stdout is not None
+        for raw in iter(child.proc.stdout.readline, b""):
+            self.log(raw.decode("utf-8", errors="replace").rstrip("\r\n"), child.name)
+        child.proc.stdout.close()
+
+    # ------------------------------------------------------------------ start
+    def _base_env(self) -> dict[str, str]:
+        env = dict(os.environ)
+        env["PYTHONUNBUFFERED"] = "1"
+        env["QM_PARENT_PID"] = str(os.getpid())
+        if self.connect:
+            env["QM_ZENOH_CONNECT"] = self.connect
+        return env
+
+    def _spawn(self, child: Child) -> None:
+        child.proc = subprocess.Popen(
+            child.argv,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            env=child.env,
+            process_group=0,
+        )
+        child.reader = threading.Thread(
+            target=self._pump, args=(child,), name=f"out-{child.name}", daemon=True
+        )
+        child.reader.start()
+        self.children.append(child)
+        self.log(f"started {child.name} (pid {child.pid}): {' '.join(child.argv[3:])}")
+
+    def service_argv(self, name: str) -> list[str]:
+        """The command line of service ``name`` as the launcher runs it."""
+        args = ["service", name]
+        if self.robot:
+            args += ["--robot", self.robot]
+        if self.connect:
+            args += ["--connect", self.connect]
+        args += list(self.service_args.get(name, []))
+        return cli_command(*args)
+
+    def start(self) -> None:
+        """Start the router (if any), wait for its port, then the services in order.
+
+        Raises RuntimeError (after stopping what started) if the router never comes up.
+        """
+        env = self._base_env()
+        if self.listen:
+            router = Child("router", cli_command("router", "--listen", self.listen), env)
+            self._spawn(router)
+            if not wait_for_port(self.connect or self.listen, self.router_wait_s, router.running):
+                why = (
+                    describe_exit(router.proc.returncode)
+                    if router.proc and router.proc.poll() is not None
+                    else f"not listening on {self.listen} after {self.router_wait_s:.0f} s"
+                )
+                self.stop()
+                raise RuntimeError(f"router failed to start: {why}")
+            self.log(f"router listening on {self.listen}")
+        for name in self.services:
+            self._spawn(Child(name, self.service_argv(name), env))
+
+    # ---------------------------------------------------------------- monitor
+    def dead_child(self) -> Child | None:
+        """The first child that exited while we were not stopping, if any."""
+        if self._stopping:
+            return None
+        for child in self.children:
+            if child.proc is not None and child.proc.poll() is not None:
+                return child
+        return None
+
+    # ------------------------------------------------------------------- stop
+    @staticmethod
+    def _signal_group(child: Child, sig: signal.Signals) -> None:
+        if child.proc is None:
+            return
+        try:
+            os.killpg(child.proc.pid, sig)
+        except (ProcessLookupError, PermissionError):
+            pass
+
+    def _wait_all(self, children: Sequence[Child], deadline: float) -> None:
+        for child in children:
+            if child.proc is None:
+                continue
+            try:
+                child.proc.wait(timeout=max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                pass
+
+    def stop(self) -> None:
+        """Stop every child: services first, router last; SIGKILL after the grace period."""
+        self._stopping = True
+        t0 = time.monotonic()
+        services = [c for c in self.children if c.name != "router"]
+        routers = [c for c in self.children if c.name == "router"]
+        for child in services:
+            if child.running():
+                self._signal_group(child, signal.SIGTERM)
+        # Services get most of the grace period while the router still serves their close.
+        self._wait_all(services, t0 + 0.75 * self.stop_grace_s)
+        for child in routers:
+            if child.running():
+                self._signal_group(child, signal.SIGTERM)
+        self._wait_all(self.children, t0 + self.stop_grace_s)
+        for child in self.children:
+            if child.running():
+                self.log(f"{child.name} did not stop in {self.stop_grace_s:.1f} s: SIGKILL")
+            # Sweep the whole group, also grandchildren of a child that already exited.
+            self._signal_group(child, signal.SIGKILL)
+        self._wait_all(self.children, time.monotonic() + 0.5)
+        for child in self.children:
+            if child.reader is not None:
+                child.reader.join(timeout=0.2)
+
+    # -------------------------------------------------------------------- run
+    def run(self, stop_event: threading.Event) -> int:
+        """Start everything, supervise until ``stop_event`` or a child dies, then stop all."""
+        try:
+            self.start()
+        except RuntimeError as exc:
+            self.log(f"error: {exc}")
+            return EXIT_CHILD_DIED
+        if not self.services:
+            self.log("no services to start; running the router only")
+        self.log("running; Ctrl-C or SIGTERM stops everything")
+        code = EXIT_OK
+        while not stop_event.wait(0.05):
+            dead = self.dead_child()
+            if dead is not None:
+                assert dead.proc is not None
+                self.log(
+                    f"error: {dead.name} (pid {dead.pid}) {describe_exit(dead.proc.returncode)}; "
+                    "stopping the rest"
+                )
+                code = EXIT_CHILD_DIED
+                break
+        self.log("stopping")
+        self.stop()
+        if code != EXIT_OK:
+            dead_name = dead.name if dead is not None else "?"
+            self.log(f"stopped; exit {code} because {dead_name} died")
+        else:
+            self.log("stopped cleanly")
+        return code
+
+
+def install_stop_signals(stop_event: threading.Event) -> None:
+    """SIGTERM, SIGINT and SIGHUP set ``stop_event`` (main thread only)."""
+
+    def handler(signum: int, _frame: object) -> None:
+        stop_event.set()
+
+    for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
+        signal.signal(sig, handler)
+
+
+def resolve_services(
+    requested: str | None, config: LaunchConfig, out: TextIO
+) -> tuple[list[str], str | None]:
+    """Which services to start: ``--services`` (strict) or the config (tolerant).
+
+    Returns (names, error). Names from the command line must be registered and importable;
+    names from ``launch.toml`` that are not registered yet are skipped with a note, so the
+    default config can name the whole planned stack while only part of it exists.
+    """
+    registry = services_registry.available()
+    if requested is not None:
+        names = [n.strip() for n in requested.split(",") if n.strip()]
+        for name in names:
+            problem = registry.get(name, None) if name in registry else "not registered"
+            if problem:
+                known = ", ".join(registry) or "none registered yet"
+                return [], f"cannot start {name!r}: {problem} (registered: {known})"
+        return names, None
+    names = []
+    for name in config.services:
+        if name not in registry:
+            out.write(f"up | note: {name!r} is not registered yet; skipping\n")
+        elif registry[name]:
+            return [], f"cannot start {name!r}: {registry[name]}"
+        else:
+            names.append(name)
+    return names, None
+
+
+def up(
+    *,
+    services: str | None = None,
+    router: bool | None = None,
+    listen: str | None = None,
+    connect: str | None = None,
+    robot: str | None = None,
+    config: str = "launch",
+    out: TextIO | None = None,
+) -> int:
+    """Entry point of ``quadmanip up`` (flags override ``configs/launch.toml``)."""
+    out = out if out is not None else sys.stdout
+    try:
+        cfg = load_launch_config(config)
+        if listen is not None:
+            parse_endpoint(listen)
+        if connect is not None:
+            parse_endpoint(connect)
+    except ValueError as exc:
+        out.write(f"up | error: {exc}\n")
+        return EXIT_USAGE
+    names, error = resolve_services(services, cfg, out)
+    if error:
+        out.write(f"up | error: {error}\n")
+        return EXIT_USAGE
+    use_router = cfg.router if router is None else router
+    if not use_router and names and not (connect or os.environ.get("QM_ZENOH_CONNECT")):
+        out.write("up | note: --no-router without --connect: services use their bus defaults\n")
+    launcher = Launcher(
+        listen=(listen or cfg.listen) if use_router else None,
+        connect=connect,
+        services=names,
+        service_args=cfg.service_args,
+        robot=robot,
+        stop_grace_s=cfg.stop_grace_s,
+        router_wait_s=cfg.router_wait_s,
+        out=out,
+    )
+    stop_event = threading.Event()
+    install_stop_signals(stop_event)
+    return launcher.run(stop_event)
