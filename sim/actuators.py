@@ -1,0 +1,392 @@
+"""The actuator layer: what a real quadruped SDK does between the bus and the motors.
+
+Every physics step it turns the latest per-joint commands into motor torques and writes
+them to ``data.ctrl`` of the model's motor actuators. Nothing else in the simulator moves
+the robot (ARCHITECTURE.md, "Honest simulation").
+
+* Legs: ``tau = kp (q_des - q) + kd (dq_des - dq) + tau_ff`` (the low-level command of
+  Unitree-style SDKs). If no valid leg command arrives for ``leg_timeout`` seconds of sim
+  time the legs fall back to damping, ``tau = -kd_damp dq``, the safety mode real robots
+  use when their controller dies. The layer starts in damping: a robot whose controller
+  is not running does not hold itself up.
+* Arm: time-stamped joint trajectories (t[N], q[N,4], dq[N,4], kp, kd), interpolated with
+  cubic Hermite splines at every physics step, so the arm is smooth whatever rate its
+  owner publishes at. After the last knot the last point is held. A new trajectory
+  replaces the old one from its first time stamp on (the old one keeps running until
+  then). Before any trajectory the arm servos hold the pose they started in.
+* Gripper: position control on the finger gap, with the finger force clamped to the
+  commanded ``max_force`` (a real parallel gripper's current limit).
+* Every torque is clamped to the actuator's limit from the model (``ctrlrange`` times
+  gear) and to a linear torque-speed envelope: above a corner speed the torque available
+  in the direction of motion falls linearly to zero at the joint's no-load speed, while
+  braking torque stays available (a DC motor driven by a voltage-limited amplifier).
+* Commands with the wrong size, non-finite numbers or negative gains are rejected,
+  counted and logged; they never reach physics.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from enum import StrEnum
+
+import mujoco
+import numpy as np
+from quadmanip.common.log import get_logger
+
+log = get_logger("sim.actuators")
+
+N_LEG = 12
+N_ARM = 4
+
+
+@dataclass(frozen=True)
+class ActuatorConfig:
+    """Parameters of the actuator layer (section ``[actuators]`` of configs/sim.toml)."""
+
+    # Leg commands older than this (sim time, s) put the legs in damping mode.
+    leg_timeout: float = 0.05
+    # Damping gain on the legs in damping mode (N m s / rad).
+    leg_damping_kd: float = 2.0
+    # No-load joint speeds (rad/s) for the torque-speed envelope; <= 0 disables it.
+    leg_max_speed: float = 30.0
+    arm_max_speed: float = 6.0
+    # Fraction of the no-load speed up to which full torque is available.
+    torque_speed_corner: float = 0.5
+    # Arm servo gains used before the first trajectory (holding the initial pose).
+    arm_hold_kp: float = 60.0
+    arm_hold_kd: float = 2.0
+    # Gripper position loop on the finger opening (N/m, N s/m) and default force (N).
+    gripper_kp: float = 2000.0
+    gripper_kd: float = 20.0
+    gripper_default_force: float = 20.0
+
+
+class LegMode(StrEnum):
+    """What the leg motors are doing; reported in the sim's state/heartbeat."""
+
+    DAMPING = "damping"
+    ACTIVE = "active"
+
+
+@dataclass(frozen=True)
+class JointMap:
+    """Addresses of one group of joints in qpos/qvel and of their motor actuators."""
+
+    names: tuple[str, ...]
+    qpos: np.ndarray  # int, index into data.qpos
+    dof: np.ndarray  # int, index into data.qvel / qfrc_*
+    act: np.ndarray  # int, index into data.ctrl
+    gear: np.ndarray  # float, actuator gear (torque = gear * ctrl)
+    tau_max: np.ndarray  # float, torque limit (N m or N) in joint space
+
+    @staticmethod
+    def build(model: mujoco.MjModel, names: tuple[str, ...] | list[str]) -> JointMap:
+        """Find each named joint and the motor actuator that drives it directly."""
+        names = tuple(names)
+        qpos, dof, act, gear, tau_max = [], [], [], [], []
+        for name in names:
+            jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
+            if jid < 0:
+                raise KeyError(f"joint {name!r} not in the model")
+            qpos.append(int(model.jnt_qposadr[jid]))
+            dof.append(int(model.jnt_dofadr[jid]))
+            aid = _actuator_for_joint(model, jid)
+            if aid < 0:
+                raise KeyError(f"no motor actuator drives joint {name!r}")
+            g = float(model.actuator_gear[aid, 0])
+            act.append(aid)
+            gear.append(g)
+            tau_max.append(_torque_limit(model, aid, g))
+        return JointMap(
+            names=names,
+            qpos=np.asarray(qpos, dtype=np.intp),
+            dof=np.asarray(dof, dtype=np.intp),
+            act=np.asarray(act, dtype=np.intp),
+            gear=np.asarray(gear, dtype=float),
+            tau_max=np.asarray(tau_max, dtype=float),
+        )
+
+
+def _actuator_for_joint(model: mujoco.MjModel, jid: int) -> int:
+    for aid in range(model.nu):
+        if (
+            model.actuator_trntype[aid] == mujoco.mjtTrn.mjTRN_JOINT
+            and model.actuator_trnid[aid, 0] == jid
+        ):
+            return aid
+    return -1
+
+
+def _torque_limit(model: mujoco.MjModel, aid: int, gear: float) -> float:
+    """Joint-space torque limit of an actuator: ctrlrange * gear, else forcerange."""
+    limits = []
+    if model.actuator_ctrllimited[aid]:
+        lo, hi = model.actuator_ctrlrange[aid]
+        limits.append(min(abs(lo), abs(hi)) * abs(gear))
+    if model.actuator_forcelimited[aid]:
+        lo, hi = model.actuator_forcerange[aid]
+        limits.append(min(abs(lo), abs(hi)) * abs(gear))
+    return min(limits) if limits else float("inf")
+
+
+def torque_speed_clamp(
+    tau: np.ndarray, dq: np.ndarray, tau_max: np.ndarray, max_speed: float, corner: float
+) -> np.ndarray:
+    """Clamp torques to ``|tau| <= tau_max`` and to a linear torque-speed envelope.
+
+    Torque pushing in the direction of motion is limited to ``tau_max`` up to
+    ``corner * max_speed`` and then falls linearly to zero at ``max_speed``; braking
+    torque (opposite to the motion) keeps the full limit.
+    """
+    tau = np.clip(tau, -tau_max, tau_max)
+    if max_speed <= 0.0:
+        return tau
+    w_c = corner * max_speed
+    scale = np.clip((max_speed - np.abs(dq)) / max(max_speed - w_c, 1e-9), 0.0, 1.0)
+    driving = tau * dq > 0.0
+    lim = tau_max * scale
+    return np.where(driving, np.clip(tau, -lim, lim), tau)
+
+
+def hermite(
+    t: np.ndarray, q: np.ndarray, dq: np.ndarray, now: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Cubic Hermite interpolation of knots (t[N], q[N,k], dq[N,k]) at ``now``.
+
+    Exact at the knots (position and velocity), C1 between them. Before the first knot
+    it returns the first point, after the last the last point with zero velocity.
+    """
+    n = len(t)
+    if now <= t[0]:
+        return q[0].copy(), (dq[0].copy() if n == 1 or now == t[0] else np.zeros_like(q[0]))
+    if now >= t[-1]:
+        return q[-1].copy(), (dq[-1].copy() if now == t[-1] else np.zeros_like(q[-1]))
+    i = int(np.searchsorted(t, now, side="right") - 1)
+    h = t[i + 1] - t[i]
+    s = (now - t[i]) / h
+    s2, s3 = s * s, s * s * s
+    h00 = 2 * s3 - 3 * s2 + 1
+    h10 = s3 - 2 * s2 + s
+    h01 = -2 * s3 + 3 * s2
+    h11 = s3 - s2
+    pos = h00 * q[i] + h10 * h * dq[i] + h01 * q[i + 1] + h11 * h * dq[i + 1]
+    d00 = (6 * s2 - 6 * s) / h
+    d10 = 3 * s2 - 4 * s + 1
+    d01 = (-6 * s2 + 6 * s) / h
+    d11 = 3 * s2 - 2 * s
+    vel = d00 * q[i] + d10 * dq[i] + d01 * q[i + 1] + d11 * dq[i + 1]
+    return pos, vel
+
+
+@dataclass(frozen=True)
+class ArmSegment:
+    """One accepted arm trajectory."""
+
+    t: np.ndarray
+    q: np.ndarray
+    dq: np.ndarray
+    kp: np.ndarray
+    kd: np.ndarray
+
+
+class ActuatorLayer:
+    """Per-joint PD + feed-forward motor layer with timeout damping (see module doc)."""
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        config: ActuatorConfig,
+        leg_joints: tuple[str, ...] | list[str],
+        arm_joints: tuple[str, ...] | list[str],
+        gripper_joints: tuple[str, ...] | list[str],
+    ) -> None:
+        if len(leg_joints) != N_LEG or len(arm_joints) != N_ARM:
+            raise ValueError("expected 12 leg joints and 4 arm joints")
+        self.model = model
+        self.config = config
+        self.legs = JointMap.build(model, leg_joints)
+        self.arm = JointMap.build(model, arm_joints)
+        self.gripper = JointMap.build(model, gripper_joints)
+        self.rejected = 0
+        self.reject_reasons: dict[str, int] = {}
+        # Legs: start in damping, no command yet.
+        self._leg_cmd: tuple[np.ndarray, ...] | None = None
+        self._leg_cmd_time = -np.inf
+        self.leg_mode = LegMode.DAMPING
+        # Arm: hold the pose found at the first step.
+        self._arm_segments: list[ArmSegment] = []
+        self._arm_hold: np.ndarray | None = None
+        # Gripper: hold the opening found at the first step.
+        self._grip_gap: float | None = None
+        self._grip_force = float(config.gripper_default_force)
+        self.tau = np.zeros(model.nu)
+
+    # ----------------------------------------------------------------- commands
+    def _reject(self, what: str, reason: str) -> bool:
+        self.rejected += 1
+        key = f"{what}: {reason}"
+        self.reject_reasons[key] = self.reject_reasons.get(key, 0) + 1
+        log.throttled(
+            f"reject-{what}",
+            1.0,
+            logging.WARNING,
+            "command rejected",
+            command=what,
+            reason=reason,
+            total=self.rejected,
+        )
+        return False
+
+    def set_leg_command(
+        self,
+        now: float,
+        q_des: np.ndarray,
+        dq_des: np.ndarray,
+        kp: np.ndarray,
+        kd: np.ndarray,
+        tau_ff: np.ndarray,
+    ) -> bool:
+        """Accept a leg command received at sim time ``now``; False if rejected."""
+        arrays = []
+        for name, a in (("q_des", q_des), ("dq_des", dq_des), ("kp", kp), ("kd", kd)):
+            arr = np.asarray(a, dtype=float)
+            if arr.shape != (N_LEG,):
+                return self._reject("leg", f"{name} shape {arr.shape} != (12,)")
+            arrays.append(arr)
+        ff = np.asarray(tau_ff, dtype=float)
+        if ff.shape != (N_LEG,):
+            return self._reject("leg", f"tau_ff shape {ff.shape} != (12,)")
+        arrays.append(ff)
+        if not all(np.all(np.isfinite(a)) for a in arrays):
+            return self._reject("leg", "non-finite value")
+        if np.any(arrays[2] < 0) or np.any(arrays[3] < 0):
+            return self._reject("leg", "negative gain")
+        self._leg_cmd = tuple(a.copy() for a in arrays)
+        self._leg_cmd_time = float(now)
+        return True
+
+    def set_arm_trajectory(
+        self,
+        now: float,
+        t: np.ndarray,
+        q: np.ndarray,
+        dq: np.ndarray,
+        kp: np.ndarray,
+        kd: np.ndarray,
+    ) -> bool:
+        """Accept an arm trajectory; it takes over from its first time stamp on."""
+        t = np.asarray(t, dtype=float)
+        q = np.asarray(q, dtype=float)
+        dq = np.asarray(dq, dtype=float)
+        kp = np.asarray(kp, dtype=float)
+        kd = np.asarray(kd, dtype=float)
+        if t.ndim != 1 or len(t) < 1:
+            return self._reject("arm", f"t shape {t.shape} is not (N>=1,)")
+        n = len(t)
+        if q.shape != (n, N_ARM) or dq.shape != (n, N_ARM):
+            return self._reject("arm", f"q/dq shapes {q.shape}/{dq.shape} != ({n}, 4)")
+        if kp.shape != (N_ARM,) or kd.shape != (N_ARM,):
+            return self._reject("arm", f"kp/kd shapes {kp.shape}/{kd.shape} != (4,)")
+        if not all(np.all(np.isfinite(a)) for a in (t, q, dq, kp, kd)):
+            return self._reject("arm", "non-finite value")
+        if np.any(kp < 0) or np.any(kd < 0):
+            return self._reject("arm", "negative gain")
+        if n > 1 and np.any(np.diff(t) <= 0):
+            return self._reject("arm", "time stamps not strictly increasing")
+        seg = ArmSegment(t.copy(), q.copy(), dq.copy(), kp.copy(), kd.copy())
+        # Replace everything from this trajectory's first stamp on.
+        self._arm_segments = [s for s in self._arm_segments if s.t[0] < t[0]]
+        self._arm_segments.append(seg)
+        return True
+
+    def set_gripper_command(self, now: float, gap: float, max_force: float) -> bool:
+        """Accept a gripper command: finger gap (m) and force limit (N)."""
+        try:
+            gap, max_force = float(gap), float(max_force)
+        except (TypeError, ValueError):
+            return self._reject("gripper", "not a number")
+        if not (np.isfinite(gap) and np.isfinite(max_force)):
+            return self._reject("gripper", "non-finite value")
+        if max_force < 0:
+            return self._reject("gripper", "negative force")
+        lo, hi = self.gripper_gap_range()
+        self._grip_gap = float(np.clip(gap, lo, hi))
+        self._grip_force = max_force
+        return True
+
+    # ------------------------------------------------------------------ gripper
+    def gripper_gap(self, data: mujoco.MjData) -> float:
+        """Finger gap (m): the sum of the two finger slide positions (0 = closed)."""
+        return float(np.sum(data.qpos[self.gripper.qpos]))
+
+    def gripper_gap_range(self) -> tuple[float, float]:
+        """Gap range allowed by the finger joint limits."""
+        jr = [
+            self.model.jnt_range[mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, n)]
+            for n in self.gripper.names
+        ]
+        return float(sum(max(r[0], 0.0) for r in jr)), float(sum(r[1] for r in jr))
+
+    # -------------------------------------------------------------------- apply
+    def leg_mode_at(self, now: float) -> LegMode:
+        """Active while the last valid leg command is younger than the timeout."""
+        if self._leg_cmd is None or now - self._leg_cmd_time > self.config.leg_timeout + 1e-9:
+            return LegMode.DAMPING
+        return LegMode.ACTIVE
+
+    def apply(self, data: mujoco.MjData) -> None:
+        """Compute and write the motor torques for the current physics step."""
+        now = float(data.time)
+        cfg = self.config
+        # Legs.
+        q = data.qpos[self.legs.qpos]
+        dq = data.qvel[self.legs.dof]
+        mode = self.leg_mode_at(now)
+        if mode is not self.leg_mode:
+            log.info("leg mode", old=self.leg_mode.value, new=mode.value, t=round(now, 4))
+            self.leg_mode = mode
+        if mode is LegMode.ACTIVE:
+            q_des, dq_des, kp, kd, ff = self._leg_cmd  # type: ignore[misc]
+            tau_leg = kp * (q_des - q) + kd * (dq_des - dq) + ff
+        else:
+            tau_leg = -cfg.leg_damping_kd * dq
+        tau_leg = torque_speed_clamp(
+            tau_leg, dq, self.legs.tau_max, cfg.leg_max_speed, cfg.torque_speed_corner
+        )
+        # Arm.
+        qa = data.qpos[self.arm.qpos]
+        dqa = data.qvel[self.arm.dof]
+        while len(self._arm_segments) > 1 and self._arm_segments[1].t[0] <= now:
+            self._arm_segments.pop(0)
+        if self._arm_segments and self._arm_segments[0].t[0] <= now:
+            seg = self._arm_segments[0]
+            qd, dqd = hermite(seg.t, seg.q, seg.dq, now)
+            kp_a, kd_a = seg.kp, seg.kd
+        else:
+            if self._arm_hold is None:
+                self._arm_hold = qa.copy()
+            qd, dqd = self._arm_hold, np.zeros(N_ARM)
+            kp_a = np.full(N_ARM, cfg.arm_hold_kp)
+            kd_a = np.full(N_ARM, cfg.arm_hold_kd)
+        if self._arm_segments and self._arm_segments[0].t[0] <= now:
+            # Once a trajectory has run, its end pose becomes the hold pose.
+            self._arm_hold = None
+        tau_arm = kp_a * (qd - qa) + kd_a * (dqd - dqa)
+        tau_arm = torque_speed_clamp(
+            tau_arm, dqa, self.arm.tau_max, cfg.arm_max_speed, cfg.torque_speed_corner
+        )
+        # Gripper: each finger tracks half the gap, force clamped to max_force.
+        qg = data.qpos[self.gripper.qpos]
+        dqg = data.qvel[self.gripper.dof]
+        if self._grip_gap is None:
+            self._grip_gap = float(np.sum(qg))
+        per_finger = self._grip_gap / len(self.gripper.names)
+        f = cfg.gripper_kp * (per_finger - qg) - cfg.gripper_kd * dqg
+        fmax = np.minimum(self._grip_force, self.gripper.tau_max)
+        f = np.clip(f, -fmax, fmax)
+        # Write ctrl (ctrl = tau / gear).
+        self.tau = np.zeros(self.model.nu)
+        for jm, tau in ((self.legs, tau_leg), (self.arm, tau_arm), (self.gripper, f)):
+            data.ctrl[jm.act] = tau / jm.gear
+            self.tau[jm.act] = tau
