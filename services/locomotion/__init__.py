@@ -1,0 +1,1 @@
+"""Locomotion service: state estimator, gait, convex MPC (PIQP), swing legs, Zenoh node."""
