@@ -14,8 +14,8 @@
 * 2D LiDAR: ``mj_multiRay`` from the ``lidar`` site in its horizontal plane, rays that hit
   the robot's own geoms are continued past them (a real LiDAR mounted on the robot is
   placed/masked so it does not see itself), Gaussian range noise, readings outside
-  [range_min, range_max] are reported as ``range_max + 1`` ("no return"; ROS would use
-  +inf, which our wire format rejects as non-finite).
+  [range_min, range_max] are reported as 0 ("no return", the LaserScan contract: the wire
+  carries no inf/NaN).
 """
 
 from __future__ import annotations
@@ -204,7 +204,9 @@ class RgbdRenderer:
                 raise KeyError(f"camera {name!r} not in the model")
             self._cam_ids[name] = cid
         self._base = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, base_body)
-        self._gl = mujoco.GLContext(int(model.vis.global_.offwidth), int(model.vis.global_.offheight))
+        self._gl = mujoco.GLContext(
+            int(model.vis.global_.offwidth), int(model.vis.global_.offheight)
+        )
         self._gl.make_current()
         self._ctx = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100)
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._ctx)
@@ -306,7 +308,7 @@ class ScanReading:
     angle_increment: float
     range_min: float
     range_max: float
-    ranges: np.ndarray  # float32 [N]; range_max + 1 where there is no return
+    ranges: np.ndarray  # float32 [N]; 0 where there is no return
 
 
 class Lidar:
@@ -372,7 +374,7 @@ class Lidar:
             dist[i] = travelled + d if g >= 0 and not self._robot_geom[g] else -1.0
         ranges = dist + self.rng.normal(0.0, cfg.noise, cfg.rays)
         invalid = (dist < 0) | (ranges < cfg.range_min) | (ranges > cfg.range_max)
-        ranges[invalid] = cfg.range_max + 1.0
+        ranges[invalid] = 0.0
         return ScanReading(
             angle_min=float(self.angle_min),
             angle_increment=float(self.angle_increment),
