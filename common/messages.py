@@ -1,0 +1,480 @@
+"""Every quadmanip message: frozen, typed dataclasses with a schema name and version.
+
+Conventions (docs/conventions.md): SI units; x forward, y left, z up; quaternions
+[w, x, y, z]; ``stamp`` is robot time in seconds (sim time in simulation). Joint arrays of
+16 are legs FL(abad, hip, knee), FR, RL, RR then arm j1..j4; leg arrays have 12.
+
+Arrays accept lists/tuples on construction (``LegCommand(stamp=0.0, tick=1, q_des=[0]*12,
+...)``); they are converted to the declared dtype, validated (shape, finiteness) and made
+read-only. Codec and validation live in :mod:`quadmanip.common.schema`.
+
+To add a message: declare it here with ``@message("qm.Name", (1, 0))``; add fields to an
+existing one only at the end *with a default* and bump the minor version; anything else
+(rename, retype, remove) bumps the major version. The key table is in ``keys.py``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from quadmanip.common.schema import (
+    Message,
+    MessageError,
+    array,
+    decode,
+    encode,
+    message,
+    message_types,
+    registry,
+    string,
+    string_list,
+)
+
+__all__ = [
+    "ActionCancel",
+    "ActionFeedback",
+    "ActionGoal",
+    "ActionResponse",
+    "ActionResult",
+    "ArmTrajectory",
+    "BodyPoseCommand",
+    "BodyVelocityCommand",
+    "Clock",
+    "Disturbance",
+    "DrawerGoal",
+    "GraspGoal",
+    "GripperCommand",
+    "GroundTruthContacts",
+    "GroundTruthPoses",
+    "Heartbeat",
+    "Imu",
+    "JointState",
+    "JudgeReport",
+    "LaserScan",
+    "LegCommand",
+    "LocomotionDebug",
+    "LocomotionMode",
+    "LowState",
+    "Message",
+    "MessageError",
+    "Odometry",
+    "PlaceGoal",
+    "PostureGoal",
+    "RgbdImage",
+    "decode",
+    "encode",
+    "message_types",
+    "registry",
+]
+
+N_JOINTS = 16
+N_LEG_JOINTS = 12
+N_ARM_JOINTS = 4
+
+_MAX_TEXT = 4096  # free-text reasons / feedback
+
+
+def _unit_quat(q: np.ndarray, what: str) -> None:
+    """Reject quaternions that are far from unit norm (a zero quaternion is no rotation)."""
+    n = float(np.dot(q, q))
+    if not 0.81 <= n <= 1.21:  # |q| within 10 %: generous for float32 sources and noise
+        raise MessageError(f"{what} must be a unit quaternion [w,x,y,z], |q|={math.sqrt(n):.3g}")
+
+
+# --------------------------------------------------------------------------- time / state
+
+
+@message("qm.Clock", (1, 0))
+class Clock(Message):
+    """Robot time, published by the sim (sim time) or a hardware adapter (wall time)."""
+
+    stamp: float
+
+
+@message("qm.JointState", (1, 0))
+class JointState(Message):
+    """Measured joint state: 16 joints (12 legs + 4 arm) and the gripper.
+
+    ``tau`` is the torque the actuator layer applied (N·m); ``gripper_gap`` the finger
+    gap (m); ``gripper_effort`` the gripper actuator force (N, >= 0 when squeezing).
+    """
+
+    stamp: float
+    q: np.ndarray = array("f8", (N_JOINTS,))
+    dq: np.ndarray = array("f8", (N_JOINTS,))
+    tau: np.ndarray = array("f8", (N_JOINTS,))
+    gripper_gap: float = 0.0
+    gripper_effort: float = 0.0
+
+
+@message("qm.Imu", (1, 0))
+class Imu(Message):
+    """IMU sample: orientation [w,x,y,z] of the base in the world/odom frame, body-frame
+    angular velocity (rad/s) and specific force (m/s², +9.81 z when standing still)."""
+
+    stamp: float
+    orientation: np.ndarray = array("f8", (4,))
+    angular_velocity: np.ndarray = array("f8", (3,))
+    linear_acceleration: np.ndarray = array("f8", (3,))
+
+    def _check(self) -> None:
+        _unit_quat(self.orientation, "Imu.orientation")
+
+
+@message("qm.LowState", (1, 0))
+class LowState(Message):
+    """The control-rate (500 Hz) state from sim/hardware. ``tick`` counts control ticks;
+    a LegCommand echoes it (lockstep)."""
+
+    stamp: float
+    tick: int
+    joints: JointState
+    imu: Imu
+
+
+# --------------------------------------------------------------------------- commands
+
+
+@message("qm.LegCommand", (1, 0))
+class LegCommand(Message):
+    """Per-joint PD + feed-forward command for the 12 leg joints:
+    tau = kp (q_des - q) + kd (dq_des - dq) + tau_ff, clamped by the actuator layer.
+    ``tick`` echoes the LowState tick this command answers."""
+
+    stamp: float
+    tick: int
+    q_des: np.ndarray = array("f8", (N_LEG_JOINTS,))
+    dq_des: np.ndarray = array("f8", (N_LEG_JOINTS,))
+    kp: np.ndarray = array("f8", (N_LEG_JOINTS,), nonneg=True)
+    kd: np.ndarray = array("f8", (N_LEG_JOINTS,), nonneg=True)
+    tau_ff: np.ndarray = array("f8", (N_LEG_JOINTS,))
+
+
+@message("qm.ArmTrajectory", (1, 0))
+class ArmTrajectory(Message):
+    """Time-stamped arm joint trajectory (robot time ``t``, strictly increasing) that the
+    actuator layer interpolates, with PD gains for the 4 arm joints."""
+
+    stamp: float
+    t: np.ndarray = array("f8", (None,), max_elements=100_000)
+    q: np.ndarray = array("f8", (None, N_ARM_JOINTS), max_elements=400_000)
+    dq: np.ndarray = array("f8", (None, N_ARM_JOINTS), max_elements=400_000)
+    kp: np.ndarray = array("f8", (N_ARM_JOINTS,), nonneg=True)
+    kd: np.ndarray = array("f8", (N_ARM_JOINTS,), nonneg=True)
+
+    def _check(self) -> None:
+        n = self.t.shape[0]
+        if n < 1:
+            raise MessageError("ArmTrajectory needs at least one point")
+        if self.q.shape[0] != n or self.dq.shape[0] != n:
+            raise MessageError(
+                f"ArmTrajectory: t has {n} points but q {self.q.shape[0]}, dq {self.dq.shape[0]}"
+            )
+        if n > 1 and not bool(np.all(np.diff(self.t) > 0.0)):
+            raise MessageError("ArmTrajectory.t must be strictly increasing")
+
+
+@message("qm.GripperCommand", (1, 0))
+class GripperCommand(Message):
+    """Target finger gap (m, >= 0) with a squeeze force limit (N, >= 0)."""
+
+    stamp: float
+    gap: float
+    max_force: float
+
+    def _check(self) -> None:
+        if self.gap < 0.0 or self.max_force < 0.0:
+            raise MessageError("GripperCommand: gap and max_force must be >= 0")
+
+
+@message("qm.BodyVelocityCommand", (1, 0))
+class BodyVelocityCommand(Message):
+    """Body velocity in the base frame: vx, vy (m/s) and yaw rate wz (rad/s)."""
+
+    stamp: float
+    vx: float
+    vy: float
+    wz: float
+
+
+@message("qm.BodyPoseCommand", (1, 0))
+class BodyPoseCommand(Message):
+    """Body pose offsets from the nominal standing pose (m, rad), used while standing
+    (e.g. Algorithm 6's moveCOM and crouching for vertical grasps)."""
+
+    stamp: float
+    z_offset: float = 0.0
+    x_offset: float = 0.0
+    y_offset: float = 0.0
+    roll: float = 0.0
+    pitch: float = 0.0
+    yaw: float = 0.0
+
+
+@message("qm.LocomotionMode", (1, 0))
+class LocomotionMode(Message):
+    """Locomotion mode request: stand, sit, damp (passive damping) or walk."""
+
+    stamp: float
+    mode: str = string(choices=("stand", "sit", "damp", "walk"))
+
+
+# --------------------------------------------------------------------------- sensors
+
+
+@message("qm.RgbdImage", (1, 0))
+class RgbdImage(Message):
+    """An RGB-D frame with intrinsics and the camera pose in the base frame.
+
+    ``depth`` is metres along the optical axis, float32, finite, >= 0; 0 means no return
+    (we avoid NaN/inf on the wire so every float stays checkable). ``rgb`` may be empty
+    (shape (0, 0, 3)) for a depth-only frame, else it matches depth's H×W. ``K`` is the
+    OpenCV intrinsic matrix; ``position``/``orientation`` ([w,x,y,z]) are base_T_camera in
+    the OpenCV optical convention (x right, y down, z forward).
+    """
+
+    stamp: float
+    camera: str
+    rgb: np.ndarray = array("u1", (None, None, 3))
+    depth: np.ndarray = array("f4", (None, None), nonneg=True)
+    K: np.ndarray = array("f8", (3, 3))
+    position: np.ndarray = array("f8", (3,))
+    orientation: np.ndarray = array("f8", (4,))
+
+    def _check(self) -> None:
+        if self.rgb.size and self.rgb.shape[:2] != self.depth.shape:
+            raise MessageError(
+                f"RgbdImage: rgb {self.rgb.shape[:2]} and depth {self.depth.shape} differ"
+            )
+        _unit_quat(self.orientation, "RgbdImage.orientation")
+
+
+@message("qm.LaserScan", (1, 0))
+class LaserScan(Message):
+    """A 2D LiDAR scan in the ``lidar`` frame, counter-clockwise from ``angle_min``.
+
+    Ranges in metres; a ray with no return is 0.0 (below ``range_min``), never inf/NaN.
+    """
+
+    stamp: float
+    angle_min: float
+    angle_increment: float
+    range_min: float
+    range_max: float
+    ranges: np.ndarray = array("f4", (None,), nonneg=True, max_elements=1 << 16)
+
+
+@message("qm.Odometry", (1, 0))
+class Odometry(Message):
+    """Base pose in the odom frame ([w,x,y,z]) and base-frame linear/angular velocity."""
+
+    stamp: float
+    position: np.ndarray = array("f8", (3,))
+    orientation: np.ndarray = array("f8", (4,))
+    linear_velocity: np.ndarray = array("f8", (3,))
+    angular_velocity: np.ndarray = array("f8", (3,))
+
+    def _check(self) -> None:
+        _unit_quat(self.orientation, "Odometry.orientation")
+
+
+@message("qm.LocomotionDebug", (1, 0))
+class LocomotionDebug(Message):
+    """Locomotion internals for plots: gait phase in [0, 1) per leg, scheduled contact,
+    foot forces (N, world frame, ground on robot) per leg, MPC solve time and the MPC's
+    predicted base positions over the horizon."""
+
+    stamp: float
+    gait_phase: np.ndarray = array("f8", (4,))
+    contact: np.ndarray = array("?", (4,))
+    foot_forces: np.ndarray = array("f8", (4, 3))
+    mpc_solve_ms: float = 0.0
+    mpc_predicted_positions: np.ndarray = array(
+        "f8", (None, 3), max_elements=30_000, default=np.zeros((0, 3))
+    )
+
+
+# --------------------------------------------------------------------------- service / actions
+
+
+@message("qm.Heartbeat", (1, 0))
+class Heartbeat(Message):
+    """1 Hz service heartbeat: ``seq`` increments; ``state`` is the lifecycle state
+    (e.g. starting, running, stopping, error)."""
+
+    stamp: float
+    service: str
+    seq: int
+    state: str = string(max_len=64)
+
+
+@message("qm.ActionGoal", (1, 0))
+class ActionGoal(Message):
+    """Request to start action ``action`` with any registered message as the goal."""
+
+    stamp: float
+    goal_id: str
+    action: str
+    goal: Message
+
+
+@message("qm.ActionResponse", (1, 0))
+class ActionResponse(Message):
+    """Accepted or rejected (with a reason) answer to an ActionGoal."""
+
+    stamp: float
+    goal_id: str
+    accepted: bool
+    reason: str = string(max_len=_MAX_TEXT, default="")
+
+
+@message("qm.ActionFeedback", (1, 0))
+class ActionFeedback(Message):
+    """Progress in [0, 1] (finite) and a short human-readable text."""
+
+    stamp: float
+    goal_id: str
+    progress: float
+    text: str = string(max_len=_MAX_TEXT, default="")
+
+
+@message("qm.ActionResult", (1, 0))
+class ActionResult(Message):
+    """Final outcome of a goal; ``result`` optionally carries a message."""
+
+    stamp: float
+    goal_id: str
+    status: str = string(choices=("succeeded", "failed", "canceled"))
+    reason: str = string(max_len=_MAX_TEXT, default="")
+    result: Message | None = None
+
+
+@message("qm.ActionCancel", (1, 0))
+class ActionCancel(Message):
+    """Ask the server to cancel goal ``goal_id``."""
+
+    stamp: float
+    goal_id: str
+
+
+# Goals of the manipulation actions (frame: base, unless said otherwise).
+
+
+@message("qm.PostureGoal", (1, 0))
+class PostureGoal(Message):
+    """Move the arm to a named posture from the manipulation config (e.g. ``stow``)."""
+
+    stamp: float
+    posture: str
+    duration: float = 0.0  # 0: let the planner choose from velocity limits
+
+
+@message("qm.GraspGoal", (1, 0))
+class GraspGoal(Message):
+    """Grasp an object at ``position`` (base frame) about ``yaw`` (rad, base frame);
+    ``approach`` vertical (from above), horizontal, or auto; ``width`` is the object's
+    width across the fingers (m)."""
+
+    stamp: float
+    position: np.ndarray = array("f8", (3,))
+    yaw: float = 0.0
+    approach: str = string(choices=("auto", "vertical", "horizontal"), default="auto")
+    width: float = 0.05
+    object_name: str = ""
+
+
+@message("qm.PlaceGoal", (1, 0))
+class PlaceGoal(Message):
+    """Place the held object at ``position`` (base frame), released from above."""
+
+    stamp: float
+    position: np.ndarray = array("f8", (3,))
+    yaw: float = 0.0
+
+
+@message("qm.DrawerGoal", (1, 0))
+class DrawerGoal(Message):
+    """Open a drawer: handle at ``handle_position`` (base frame), pulled ``distance`` (m)
+    along ``pull_direction`` (unit vector, base frame)."""
+
+    stamp: float
+    handle_position: np.ndarray = array("f8", (3,))
+    pull_direction: np.ndarray = array("f8", (3,))
+    distance: float = 0.15
+
+    def _check(self) -> None:
+        n = float(np.linalg.norm(self.pull_direction))
+        if abs(n - 1.0) > 0.05:
+            raise MessageError(f"DrawerGoal.pull_direction must be a unit vector, |d|={n:.3g}")
+
+
+# --------------------------------------------------------------------------- sim test / ground truth
+
+
+@message("qm.Disturbance", (1, 0))
+class Disturbance(Message):
+    """TEST-ONLY external wrench (N, N·m, world frame) on body ``body`` for ``duration`` s.
+    The sim applies it only when its test channel is enabled."""
+
+    stamp: float
+    force: np.ndarray = array("f8", (3,))
+    torque: np.ndarray = array("f8", (3,))
+    duration: float = 0.0
+    body: str = "base"
+
+    def _check(self) -> None:
+        if self.duration < 0.0:
+            raise MessageError("Disturbance.duration must be >= 0")
+
+
+@message("qm.GroundTruthPoses", (1, 0))
+class GroundTruthPoses(Message):
+    """GROUND TRUTH (judge/tests/viz only): world poses of named bodies; the robot base is
+    named ``base``."""
+
+    stamp: float
+    names: list[str] = string_list()
+    positions: np.ndarray = array("f8", (None, 3), max_elements=3 * 4096)
+    orientations: np.ndarray = array("f8", (None, 4), max_elements=4 * 4096)
+
+    def _check(self) -> None:
+        n = len(self.names)
+        if self.positions.shape[0] != n or self.orientations.shape[0] != n:
+            raise MessageError(
+                f"GroundTruthPoses: {n} names but {self.positions.shape[0]} positions and "
+                f"{self.orientations.shape[0]} orientations"
+            )
+
+
+@message("qm.GroundTruthContacts", (1, 0))
+class GroundTruthContacts(Message):
+    """GROUND TRUTH: active contacts between named bodies: world contact point and the
+    contact force on ``body1`` (world frame, N)."""
+
+    stamp: float
+    body1: list[str] = string_list()
+    body2: list[str] = string_list()
+    positions: np.ndarray = array("f8", (None, 3), max_elements=3 * 4096)
+    forces: np.ndarray = array("f8", (None, 3), max_elements=3 * 4096)
+
+    def _check(self) -> None:
+        n = len(self.body1)
+        if len(self.body2) != n or self.positions.shape[0] != n or self.forces.shape[0] != n:
+            raise MessageError("GroundTruthContacts: body1, body2, positions, forces differ")
+
+
+@message("qm.JudgeReport", (1, 0))
+class JudgeReport(Message):
+    """The sim judge's verdict from ground truth: which objects are in their deposit
+    region, which are not, and the total number of objects."""
+
+    stamp: float
+    trial_time: float
+    in_place: list[str] = string_list()
+    misplaced: list[str] = string_list()
+    total: int = 0
+
+    def _check(self) -> None:
+        if self.total < len(self.in_place) + len(self.misplaced) or self.total < 0:
+            raise MessageError("JudgeReport.total is less than in_place + misplaced")
