@@ -1,0 +1,266 @@
+"""Actuator layer math: PD+ff torque, clamps, timeout damping, arm spline, rejection.
+
+Uses a small fixed-base model with the robot's joint names (each joint on its own body),
+so the numbers here depend only on the actuator layer, not on the robot description.
+"""
+
+import mujoco
+import numpy as np
+import pytest
+from quadmanip.sim.actuators import (
+    ActuatorConfig,
+    ActuatorLayer,
+    LegMode,
+    hermite,
+    torque_speed_clamp,
+)
+from quadmanip.sim.engine import ARM_JOINTS, GRIPPER_JOINTS, LEG_JOINTS
+
+pytestmark = pytest.mark.unit
+
+TAU_LEG = 33.5
+TAU_ARM = 10.0
+F_GRIP = 40.0
+
+
+def _model() -> mujoco.MjModel:
+    bodies, motors = [], []
+    for i, name in enumerate(LEG_JOINTS + ARM_JOINTS):
+        bodies.append(
+            f'<body name="b_{name}" pos="{i} 0 0"><joint name="{name}" axis="0 1 0" '
+            f'damping="0"/><geom type="capsule" size="0.02" fromto="0 0 0 0.1 0 0" mass="1"/>'
+            "</body>"
+        )
+        lim = TAU_LEG if name in LEG_JOINTS else TAU_ARM
+        motors.append(f'<motor joint="{name}" ctrlrange="{-lim} {lim}" ctrllimited="true"/>')
+    for k, name in enumerate(GRIPPER_JOINTS):
+        bodies.append(
+            f'<body name="b_{name}" pos="20 {k} 0"><joint name="{name}" type="slide" '
+            f'axis="0 1 0" range="0 0.05" limited="true"/><geom type="box" size="0.01 0.01 0.01"'
+            ' mass="0.05"/></body>'
+        )
+        motors.append(f'<motor joint="{name}" ctrlrange="{-F_GRIP} {F_GRIP}" ctrllimited="true"/>')
+    xml = (
+        '<mujoco><option gravity="0 0 0" timestep="0.001"/><worldbody>'
+        + "".join(bodies)
+        + "</worldbody><actuator>"
+        + "".join(motors)
+        + "</actuator></mujoco>"
+    )
+    return mujoco.MjModel.from_xml_string(xml)
+
+
+@pytest.fixture
+def layer():
+    m = _model()
+    d = mujoco.MjData(m)
+    cfg = ActuatorConfig(leg_max_speed=30.0, torque_speed_corner=0.5, leg_damping_kd=2.0)
+    return m, d, ActuatorLayer(m, cfg, LEG_JOINTS, ARM_JOINTS, GRIPPER_JOINTS)
+
+
+def _leg_cmd(q=0.0, dq=0.0, kp=0.0, kd=0.0, ff=0.0):
+    return tuple(np.full(12, v, dtype=float) for v in (q, dq, kp, kd, ff))
+
+
+def test_torque_limits_come_from_ctrlrange(layer):
+    _, _, act = layer
+    assert np.allclose(act.legs.tau_max, TAU_LEG)
+    assert np.allclose(act.arm.tau_max, TAU_ARM)
+    assert np.allclose(act.gripper.tau_max, F_GRIP)
+
+
+def test_pd_feedforward_law_and_clamp(layer):
+    m, d, act = layer
+    rng = np.random.default_rng(1)
+    q = rng.uniform(-0.5, 0.5, 12)
+    dq = rng.uniform(-2, 2, 12)
+    d.qpos[act.legs.qpos] = q
+    d.qvel[act.legs.dof] = dq
+    q_des, dq_des = rng.uniform(-0.5, 0.5, 12), rng.uniform(-1, 1, 12)
+    kp, kd, ff = np.full(12, 20.0), np.full(12, 0.5), rng.uniform(-3, 3, 12)
+    assert act.set_leg_command(d.time, q_des, dq_des, kp, kd, ff)
+    act.apply(d)
+    expected = kp * (q_des - q) + kd * (dq_des - dq) + ff
+    assert np.all(np.abs(expected) < TAU_LEG)  # small enough to be unclamped
+    np.testing.assert_allclose(d.ctrl[act.legs.act], expected, rtol=0, atol=1e-12)
+    # A huge gain saturates at exactly the model's limit, with the right sign.
+    assert act.set_leg_command(d.time, q + 1.0, dq, np.full(12, 1e4), kd, np.zeros(12))
+    act.apply(d)
+    np.testing.assert_allclose(d.ctrl[act.legs.act], TAU_LEG)
+
+
+def test_torque_speed_envelope():
+    tau_max = np.array([10.0])
+    # Below the corner speed: full torque both ways.
+    assert torque_speed_clamp(np.array([50.0]), np.array([10.0]), tau_max, 30, 0.5)[0] == 10
+    # Halfway between corner (15) and no-load (30): half torque in the direction of motion.
+    assert torque_speed_clamp(np.array([50.0]), np.array([22.5]), tau_max, 30, 0.5)[0] == 5
+    # Braking torque (against the motion) keeps the full limit.
+    assert torque_speed_clamp(np.array([-50.0]), np.array([22.5]), tau_max, 30, 0.5)[0] == -10
+    # At and beyond no-load speed no driving torque is left.
+    assert torque_speed_clamp(np.array([50.0]), np.array([31.0]), tau_max, 30, 0.5)[0] == 0
+
+
+def test_starts_in_damping_and_times_out_after_50ms(layer):
+    m, d, act = layer
+    dq = np.linspace(-3, 3, 12)
+    d.qvel[act.legs.dof] = dq
+    act.apply(d)
+    assert act.leg_mode is LegMode.DAMPING
+    np.testing.assert_allclose(d.ctrl[act.legs.act], -2.0 * dq)
+    assert act.set_leg_command(d.time, *_leg_cmd(ff=1.5))
+    step = m.opt.timestep
+    n_active = 0
+    while True:
+        d.qvel[act.legs.dof] = dq  # keep the velocity so the damping torque is visible
+        act.apply(d)
+        if act.leg_mode is not LegMode.ACTIVE:
+            break
+        np.testing.assert_allclose(d.ctrl[act.legs.act], 1.5)
+        n_active += 1
+        d.time += step
+    # Active for 50 ms (inclusive of the command's own step), then damping.
+    assert n_active == 51
+    assert d.time == pytest.approx(0.051, abs=1e-9)
+    np.testing.assert_allclose(d.ctrl[act.legs.act], -2.0 * dq)
+    # A fresh command brings it back.
+    assert act.set_leg_command(d.time, *_leg_cmd(ff=-1.0))
+    act.apply(d)
+    assert act.leg_mode is LegMode.ACTIVE
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"q": np.full(11, 0.0)},
+        {"kp": np.full(13, 1.0)},
+        {"ff": np.r_[np.zeros(11), np.nan]},
+        {"dq": np.r_[np.inf, np.zeros(11)]},
+        {"kd": np.r_[-1.0, np.zeros(11)]},
+        {"q": np.zeros((3, 4))},
+    ],
+)
+def test_bad_leg_commands_never_reach_physics(layer, bad):
+    _, d, act = layer
+    good = dict(zip(("q", "dq", "kp", "kd", "ff"), _leg_cmd(kp=10.0, ff=0.5), strict=True))
+    assert act.set_leg_command(d.time, *good.values())
+    act.apply(d)
+    before = d.ctrl.copy()
+    cmd = {**good, **bad}
+    assert not act.set_leg_command(d.time, *cmd.values())
+    assert act.rejected == 1
+    act.apply(d)
+    np.testing.assert_array_equal(d.ctrl, before)
+    assert np.all(np.isfinite(d.ctrl))
+
+
+def test_bad_arm_and_gripper_commands_rejected(layer):
+    _, d, act = layer
+    t = np.array([0.0, 1.0])
+    q = np.zeros((2, 4))
+    k = np.ones(4)
+    assert not act.set_arm_trajectory(0, t, np.zeros((2, 3)), q, k, k)
+    assert not act.set_arm_trajectory(0, t, q, q, np.ones(5), k)
+    assert not act.set_arm_trajectory(0, np.array([0.0, np.nan]), q, q, k, k)
+    assert not act.set_arm_trajectory(0, np.array([1.0, 0.5]), q, q, k, k)
+    assert not act.set_gripper_command(0, float("nan"), 10.0)
+    assert not act.set_gripper_command(0, 0.02, -1.0)
+    assert act.rejected == 6
+    act.apply(d)
+    assert np.all(np.isfinite(d.ctrl))
+
+
+def test_hermite_exact_at_knots_and_smooth_between():
+    rng = np.random.default_rng(3)
+    t = np.cumsum(rng.uniform(0.1, 0.5, 6))
+    q = rng.normal(size=(6, 4))
+    dq = rng.normal(size=(6, 4))
+    for i in range(6):
+        p, v = hermite(t, q, dq, t[i])
+        np.testing.assert_allclose(p, q[i], atol=1e-12)
+        np.testing.assert_allclose(v, dq[i], atol=1e-12)
+    # C1: velocity equals the numerical derivative of position, and is continuous at knots.
+    ts = np.linspace(t[0], t[-1], 4001)
+    pos = np.array([hermite(t, q, dq, x)[0] for x in ts])
+    vel = np.array([hermite(t, q, dq, x)[1] for x in ts])
+    num = np.gradient(pos, ts, axis=0)
+    assert np.max(np.abs(num[2:-2] - vel[2:-2])) < 1e-2 * max(1.0, np.abs(vel).max())
+    assert np.max(np.abs(np.diff(vel, axis=0))) < 0.05 * np.abs(vel).max()
+    # A cubic is reproduced exactly (Hermite is exact for cubics).
+    f = lambda x: 0.3 * x**3 - x**2 + 2 * x - 1  # noqa: E731
+    df = lambda x: 0.9 * x**2 - 2 * x + 2  # noqa: E731
+    tk = np.array([0.0, 0.7, 1.5])
+    qk = np.repeat(f(tk)[:, None], 4, axis=1)
+    dqk = np.repeat(df(tk)[:, None], 4, axis=1)
+    for x in np.linspace(0, 1.5, 17):
+        np.testing.assert_allclose(hermite(tk, qk, dqk, x)[0], f(x), atol=1e-12)
+    # After the end: hold the last point with zero velocity.
+    p, v = hermite(t, q, dq, t[-1] + 1.0)
+    np.testing.assert_allclose(p, q[-1])
+    np.testing.assert_allclose(v, 0.0)
+
+
+def test_arm_trajectory_drives_pd_and_replacement_starts_at_its_first_stamp(layer):
+    m, d, act = layer
+    kp, kd = np.full(4, 8.0), np.full(4, 0.3)
+    t = np.array([0.0, 1.0])
+    q = np.array([[0.0] * 4, [1.0] * 4])
+    dq = np.zeros((2, 4))
+    assert act.set_arm_trajectory(d.time, t, q, dq, kp, kd)
+    d.time = 0.5
+    act.apply(d)
+    q_mid, dq_mid = hermite(t, q, dq, 0.5)
+    np.testing.assert_allclose(q_mid, 0.5)
+    np.testing.assert_allclose(d.ctrl[act.arm.act], kp * q_mid + kd * dq_mid)
+    # A second trajectory starting at t=0.8 does not act before 0.8 ...
+    q2 = np.array([[-1.0] * 4, [-1.0] * 4])
+    assert act.set_arm_trajectory(d.time, np.array([0.8, 2.0]), q2, dq, kp * 0.75, kd)
+    d.time = 0.7
+    act.apply(d)
+    q7, dq7 = hermite(t, q, dq, 0.7)
+    np.testing.assert_allclose(d.ctrl[act.arm.act], np.clip(kp * q7 + kd * dq7, -10, 10))
+    # ... and replaces the first one from 0.8 on.
+    d.time = 0.9
+    act.apply(d)
+    np.testing.assert_allclose(d.ctrl[act.arm.act], 0.75 * kp * -1.0)
+    # After its end it holds the last point.
+    d.time = 5.0
+    act.apply(d)
+    np.testing.assert_allclose(d.ctrl[act.arm.act], 0.75 * kp * -1.0)
+
+
+def test_arm_follows_trajectory_in_physics(layer):
+    m, d, act = layer
+    t = np.linspace(0.0, 1.0, 5)
+    q = np.outer(np.sin(np.pi * t), [0.4, -0.3, 0.2, 0.5])
+    dq = np.outer(np.pi * np.cos(np.pi * t), [0.4, -0.3, 0.2, 0.5])
+    assert act.set_arm_trajectory(0.0, t, q, dq, np.full(4, 200.0), np.full(4, 5.0))
+    err = []
+    while d.time < 1.2:
+        act.apply(d)
+        mujoco.mj_step(m, d)
+        qd, _ = hermite(t, q, dq, d.time)
+        err.append(np.abs(d.qpos[act.arm.qpos] - qd).max())
+    assert max(err) < 0.05  # tracks the spline within 3 degrees
+    assert err[-1] < 0.01
+
+
+def test_gripper_force_clamped_to_max_force(layer):
+    m, d, act = layer
+    assert act.gripper_gap_range() == (0.0, 0.1)
+    # Fingers far from the target: the force saturates at max_force, not at the motor limit.
+    d.qpos[act.gripper.qpos] = 0.04
+    assert act.set_gripper_command(d.time, 0.0, 7.5)
+    act.apply(d)
+    np.testing.assert_allclose(d.ctrl[act.gripper.act], -7.5)
+    # Close to the target: proportional control on the per-finger half gap.
+    d.qpos[act.gripper.qpos] = 0.0201
+    assert act.set_gripper_command(d.time, 0.04, 30.0)
+    act.apply(d)
+    np.testing.assert_allclose(d.ctrl[act.gripper.act], 2000.0 * (0.02 - 0.0201), atol=1e-9)
+    # In physics the fingers settle at the commanded gap.
+    assert act.set_gripper_command(d.time, 0.06, 30.0)
+    for _ in range(1000):
+        act.apply(d)
+        mujoco.mj_step(m, d)
+    assert act.gripper_gap(d) == pytest.approx(0.06, abs=5e-4)
