@@ -168,8 +168,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Run a Zenoh router (arguments go to quadmanip.common.router).",
         add_help=False,
     )
-    p.add_argument("args", nargs=argparse.REMAINDER, help="router arguments (try --help)")
-    p.set_defaults(func=_cmd_router)
+    p.set_defaults(func=_cmd_router, args=[])
 
     names = services_registry.names()
     p = sub.add_parser(
@@ -215,8 +214,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Run the demo (arguments go to quadmanip.demo; try `demo --help`).",
         add_help=False,
     )
-    p.add_argument("args", nargs=argparse.REMAINDER, help="demo arguments")
-    p.set_defaults(func=_cmd_demo)
+    p.set_defaults(func=_cmd_demo, args=[])
 
     p = sub.add_parser(
         "bench",
