@@ -38,10 +38,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
 from quadmanip.common.bus import Bus, BusConfig
-from quadmanip.common.messages import Heartbeat, Imu, JointState, LaserScan, LegCommand, LowState
-from quadmanip.common.messages import RgbdImage
+from quadmanip.common.messages import (
+    Heartbeat,
+    Imu,
+    JointState,
+    LaserScan,
+    LegCommand,
+    LowState,
+    RgbdImage,
+)
 from quadmanip.common.schema import Message, decode, encode
 
 ROBOT = "bench"  # keys qm/bench/bench/...: never collides with a running robot stack
