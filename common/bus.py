@@ -1,0 +1,1120 @@
+"""The quadmanip bus: typed publish/subscribe, actions and liveliness over Zenoh.
+
+Every service talks to every other only through a :class:`Bus`. Keys follow
+``qm/<robot>/<service>/<topic>``; methods take the relative ``<service>/<topic>`` part
+(``"sim/lowstate"``) and add the prefix (a key that already starts with ``qm/`` is used
+as is). Payloads are the msgpack encoding of :mod:`quadmanip.common.messages`.
+
+Quality of service, by traffic kind (``publisher(..., kind=...)``):
+
+* ``"control"`` (leg/arm/gripper commands, velocity commands): reliable, congestion
+  control BLOCK (a command is never silently dropped), priority REAL_TIME, express (not
+  batched: lowest latency).
+* ``"sensor"`` (state, images, scans): congestion control DROP (a stale frame is worth
+  nothing), priority DATA, batched. Receivers should use ``latest_only=True`` or
+  :meth:`Bus.latest` so a slow consumer never builds a queue.
+* ``"event"`` (heartbeats, action feedback/results), and the key table's ``"gt"`` (ground
+  truth) and ``"action"``: reliable, BLOCK, priority DATA_HIGH, batched.
+
+Receiving is strict and robust: each sample is decoded with ``decode(data, expected=cls)``;
+a :class:`~quadmanip.common.schema.MessageError` (or an exception in the user callback) is
+counted per subscriber and in :attr:`Bus.stats`, logged at most once per second per key,
+and the subscriber keeps running.
+
+Sessions: ``mode`` peer (default: connects to the router, then links directly to other
+peers it learns of by gossip), client (everything through the router) or router.
+Multicast scouting is off by default so two stacks on one network never merge by accident.
+``QM_ZENOH_CONNECT`` (comma-separated endpoints), ``QM_ZENOH_LISTEN`` and ``QM_ZENOH_MODE``
+override the file config (compose sets the first). The session retries its connect
+endpoints forever (every ``reconnect_period_ms``), so a restarted router is rejoined
+without restarting the service.
+
+Shutdown: zenoh-python can hang in ``Session.close()`` (callbacks still running while
+the session is torn down, reconnecting links). :meth:`Bus.close` therefore stops its own
+worker threads, undeclares every entity, then closes the session, all in a daemon thread
+it waits on for at most ``close_timeout_s`` (2 s); on timeout it logs and lets the
+process exit anyway.
+
+Actions (long-running requests: go to pose, grasp, place ...) are built from one
+queryable and two publications under ``<service>/action/<name>``:
+
+* ``.../goal`` — the client sends :class:`ActionGoal` as the payload of a Zenoh query;
+  the server's queryable answers with :class:`ActionResponse` (accepted, or rejected with
+  a reason). Using a query, not a publication, means the client learns at once whether a
+  server exists and accepted (no lost goal while subscriptions propagate; a timeout is
+  reported as a rejection "no action server").
+* ``.../cancel`` — query with :class:`ActionCancel`, answered with :class:`ActionResponse`.
+* ``.../feedback`` and ``.../result`` — publications (``event`` QoS) of
+  :class:`ActionFeedback` and :class:`ActionResult`, filtered by ``goal_id`` on the client.
+* ``.../status`` — a queryable that answers the stored :class:`ActionResult` of a
+  finished goal (``?goal_id=...``): the client polls it while waiting, so a result
+  published during a router restart is not lost.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import logging
+import os
+import threading
+import time
+import uuid
+from collections import OrderedDict
+from collections.abc import Callable, Iterable
+from typing import Any, Generic, Literal, TypeVar
+
+import zenoh
+from quadmanip.common.config import load_config
+from quadmanip.common.log import get_logger
+from quadmanip.common.schema import Message, MessageError, decode, encode
+
+__all__ = [
+    "ActionCanceled",
+    "ActionClient",
+    "ActionFailed",
+    "ActionServer",
+    "Bus",
+    "BusConfig",
+    "ClientGoalHandle",
+    "GoalHandle",
+    "LatestCache",
+    "LivelinessWatcher",
+    "TypedPublisher",
+    "TypedSubscriber",
+    "apply_env",
+    "load_bus_config",
+    "open_session",
+    "safe_close",
+    "zenoh_config",
+]
+
+log = get_logger("bus")
+M = TypeVar("M", bound=Message)
+Kind = Literal["control", "sensor", "event", "gt", "action"]
+
+ENV_CONNECT = "QM_ZENOH_CONNECT"
+ENV_LISTEN = "QM_ZENOH_LISTEN"
+ENV_MODE = "QM_ZENOH_MODE"
+DEFAULT_ROBOT = "dog1"
+
+
+# --------------------------------------------------------------------------- config
+
+
+@dataclasses.dataclass(frozen=True)
+class BusConfig:
+    """How a process joins the bus (``configs/bus.toml``, overridable by environment)."""
+
+    mode: Literal["peer", "client", "router"] = "peer"
+    connect: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
+    # Empty: Zenoh's default for the mode (peers: an ephemeral TCP port on all interfaces).
+    listen: tuple[str, ...] = ()
+    multicast_scouting: bool = False
+    gossip: bool = True
+    # A link silent for lease_ms is declared dead (SIGKILL closes the socket at once, so
+    # this only matters for a vanished host or cable); keep_alive messages per lease.
+    lease_ms: int = 3000
+    keep_alive: int = 4
+    reconnect_period_ms: int = 500
+    close_timeout_s: float = 2.0
+    error_log_period_s: float = 1.0
+    # Whether QM_ZENOH_* environment variables may override this config.
+    env_override: bool = True
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("peer", "client", "router"):
+            raise ValueError(f"mode must be peer, client or router, not {self.mode!r}")
+        if self.mode == "client" and not self.connect:
+            raise ValueError("a client needs at least one connect endpoint")
+        if self.lease_ms < 100 or self.keep_alive < 1:
+            raise ValueError("lease_ms must be >= 100 and keep_alive >= 1")
+        if not 0.0 < self.close_timeout_s <= 10.0:
+            raise ValueError("close_timeout_s must be in (0, 10]")
+
+
+def _split_env(value: str) -> tuple[str, ...]:
+    return tuple(p.strip() for p in value.split(",") if p.strip())
+
+
+def apply_env(config: BusConfig, environ: dict[str, str] | None = None) -> BusConfig:
+    """Apply ``QM_ZENOH_CONNECT`` / ``QM_ZENOH_LISTEN`` / ``QM_ZENOH_MODE`` overrides."""
+    env = os.environ if environ is None else environ
+    if not config.env_override:
+        return config
+    changes: dict[str, Any] = {}
+    if env.get(ENV_CONNECT, "").strip():
+        changes["connect"] = _split_env(env[ENV_CONNECT])
+    if env.get(ENV_LISTEN, "").strip():
+        changes["listen"] = _split_env(env[ENV_LISTEN])
+    if env.get(ENV_MODE, "").strip():
+        changes["mode"] = env[ENV_MODE].strip()
+    return dataclasses.replace(config, **changes) if changes else config
+
+
+def load_bus_config(
+    name_or_path: str = "bus", overrides: dict[str, Any] | None = None
+) -> BusConfig:
+    """``configs/bus.toml`` (or another file) with the environment overrides applied."""
+    return apply_env(load_config(BusConfig, name_or_path, overrides))
+
+
+def zenoh_config(config: BusConfig) -> zenoh.Config:
+    """Translate a :class:`BusConfig` to a ``zenoh.Config``."""
+    zc = zenoh.Config()
+
+    def put(key: str, value: Any) -> None:
+        import json
+
+        zc.insert_json5(key, json.dumps(value))
+
+    put("mode", config.mode)
+    put("connect/endpoints", list(config.connect))
+    if config.listen:
+        put("listen/endpoints", list(config.listen))
+    put("scouting/multicast/enabled", config.multicast_scouting)
+    put("scouting/gossip/enabled", config.gossip)
+    put("transport/link/tx/lease", config.lease_ms)
+    put("transport/link/tx/keep_alive", config.keep_alive)
+    # Never give up on the router: retry forever at a fixed, short period, and do not
+    # fail the process if the router is not up yet (start order must not matter).
+    period = config.reconnect_period_ms
+    put("connect/timeout_ms", -1 if config.mode != "client" else 0)
+    put("connect/exit_on_failure", False)
+    put(
+        "connect/retry",
+        {"period_init_ms": period, "period_max_ms": period, "period_increase_factor": 1.0},
+    )
+    put(
+        "listen/retry",
+        {"period_init_ms": period, "period_max_ms": period, "period_increase_factor": 1.0},
+    )
+    if config.mode == "router":
+        put("listen/timeout_ms", 0)
+        put("listen/exit_on_failure", True)
+    return zc
+
+
+def open_session(config: BusConfig) -> zenoh.Session:
+    """Open a Zenoh session for ``config`` (environment overrides are NOT applied here)."""
+    return zenoh.open(zenoh_config(config))
+
+
+def safe_close(
+    session: zenoh.Session, timeout_s: float = 2.0, undeclare: Iterable[Any] = ()
+) -> bool:
+    """Undeclare ``undeclare`` then close ``session`` in a daemon thread, waiting ``timeout_s``.
+
+    Returns True when the close finished in time. A hung close is abandoned (the thread is
+    a daemon, so it does not keep the process alive).
+    """
+    items = list(undeclare)
+
+    def _do() -> None:
+        for item in items:
+            try:
+                item.undeclare()
+            except Exception:  # noqa: BLE001 - best effort during shutdown
+                pass
+        try:
+            session.close()
+        except Exception:  # noqa: BLE001
+            pass
+
+    t = threading.Thread(target=_do, name="zenoh-close", daemon=True)
+    t.start()
+    t.join(timeout_s)
+    if t.is_alive():
+        log.warning("zenoh session close timed out; abandoning it", timeout_s=timeout_s)
+        return False
+    return True
+
+
+# --------------------------------------------------------------------------- stats
+
+
+@dataclasses.dataclass
+class KeyStats:
+    """Counters for one key on this bus."""
+
+    published: int = 0
+    received: int = 0
+    decode_errors: int = 0
+    callback_errors: int = 0
+    dropped: int = 0  # latest-only: samples overwritten before the worker took them
+    last_error: str = ""
+
+
+class BusStats:
+    """Thread-safe per-key counters; ``bus.stats.snapshot()`` returns plain dicts."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._keys: dict[str, KeyStats] = {}
+
+    def _get(self, key: str) -> KeyStats:
+        ks = self._keys.get(key)
+        if ks is None:
+            ks = self._keys[key] = KeyStats()
+        return ks
+
+    def add(self, key: str, field: str, n: int = 1, error: str | None = None) -> None:
+        with self._lock:
+            ks = self._get(key)
+            setattr(ks, field, getattr(ks, field) + n)
+            if error is not None:
+                ks.last_error = error
+
+    def key(self, key: str) -> KeyStats:
+        with self._lock:
+            return dataclasses.replace(self._get(key))
+
+    @property
+    def decode_errors(self) -> int:
+        with self._lock:
+            return sum(k.decode_errors for k in self._keys.values())
+
+    def snapshot(self) -> dict[str, dict[str, Any]]:
+        with self._lock:
+            return {k: dataclasses.asdict(v) for k, v in self._keys.items()}
+
+
+# --------------------------------------------------------------------------- pub/sub
+
+
+_QOS: dict[str, dict[str, Any]] = {
+    "control": {
+        "congestion_control": zenoh.CongestionControl.BLOCK,
+        "priority": zenoh.Priority.REAL_TIME,
+        "express": True,
+    },
+    "sensor": {
+        "congestion_control": zenoh.CongestionControl.DROP,
+        "priority": zenoh.Priority.DATA,
+        "express": False,
+    },
+    "event": {
+        "congestion_control": zenoh.CongestionControl.BLOCK,
+        "priority": zenoh.Priority.DATA_HIGH,
+        "express": False,
+    },
+}
+
+
+# Kind names of the key table (quadmanip.common.keys) that map onto the QoS above.
+_QOS["gt"] = _QOS["event"]
+_QOS["action"] = _QOS["event"]
+
+
+class TypedPublisher(Generic[M]):
+    """Publishes messages of one type on one key; see :meth:`Bus.publisher`."""
+
+    def __init__(self, bus: Bus, key: str, msg_type: type[M], kind: Kind) -> None:
+        if kind not in _QOS:
+            raise ValueError(f"kind must be one of {sorted(_QOS)}, not {kind!r}")
+        self.key = key
+        self.msg_type = msg_type
+        self.kind = kind
+        self._bus = bus
+        qos = dict(_QOS[kind])
+        if kind != "sensor":
+            qos["reliability"] = zenoh.Reliability.RELIABLE
+        self._pub = bus.session.declare_publisher(key, **qos)
+        self.count = 0
+
+    def publish(self, msg: M) -> None:
+        """Encode and send ``msg`` (must be an instance of the declared type)."""
+        if not isinstance(msg, self.msg_type):
+            raise TypeError(
+                f"publisher on {self.key} sends {self.msg_type.__name__}, got {type(msg).__name__}"
+            )
+        self._pub.put(encode(msg))
+        self.count += 1
+        self._bus.stats.add(self.key, "published")
+
+    put = publish
+
+    @property
+    def has_subscribers(self) -> bool:
+        """Whether any subscriber currently matches this key."""
+        return bool(self._pub.matching_status)
+
+    def undeclare(self) -> None:
+        try:
+            self._pub.undeclare()
+        except Exception:  # noqa: BLE001
+            pass
+
+
+class TypedSubscriber(Generic[M]):
+    """Decodes samples on one key expression into ``msg_type``; see :meth:`Bus.subscribe`.
+
+    ``latest_only``: the Zenoh callback only stores the newest raw payload; a worker thread
+    decodes it and runs the user callback. Samples that arrive while the callback runs
+    replace each other (counted as ``dropped_count``), so a slow consumer never queues.
+    """
+
+    def __init__(
+        self,
+        bus: Bus,
+        key: str,
+        msg_type: type[M],
+        callback: Callable[[M], Any],
+        latest_only: bool = False,
+    ) -> None:
+        self.key = key
+        self.msg_type = msg_type
+        self.latest_only = latest_only
+        self.received_count = 0
+        self.error_count = 0
+        self.callback_error_count = 0
+        self.dropped_count = 0
+        self._bus = bus
+        self._callback = callback
+        self._stop = threading.Event()
+        self._slot: tuple[str, bytes] | None = None
+        self._slot_lock = threading.Lock()
+        self._wake = threading.Event()
+        self._worker: threading.Thread | None = None
+        if latest_only:
+            self._worker = threading.Thread(target=self._work, name=f"latest:{key}", daemon=True)
+            self._worker.start()
+            handler = self._on_sample_latest
+        else:
+            handler = self._on_sample
+        self._sub = bus.session.declare_subscriber(key, handler)
+
+    # Zenoh callbacks -------------------------------------------------------------
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        if self._stop.is_set():
+            return
+        self._deliver(str(sample.key_expr), sample.payload.to_bytes())
+
+    def _on_sample_latest(self, sample: zenoh.Sample) -> None:
+        if self._stop.is_set():
+            return
+        item = (str(sample.key_expr), sample.payload.to_bytes())
+        with self._slot_lock:
+            if self._slot is not None:
+                self.dropped_count += 1
+                self._bus.stats.add(self.key, "dropped")
+            self._slot = item
+        self._wake.set()
+
+    def _work(self) -> None:
+        while not self._stop.is_set():
+            if not self._wake.wait(0.2):
+                continue
+            with self._slot_lock:
+                item, self._slot = self._slot, None
+                self._wake.clear()
+            if item is not None:
+                self._deliver(*item)
+
+    def _deliver(self, key: str, data: bytes) -> None:
+        self.received_count += 1
+        self._bus.stats.add(self.key, "received")
+        try:
+            msg = decode(data, expected=self.msg_type)
+        except MessageError as exc:
+            self.error_count += 1
+            self._bus.stats.add(self.key, "decode_errors", error=str(exc))
+            log.throttled(
+                f"decode:{self.key}",
+                self._bus.config.error_log_period_s,
+                logging.WARNING,
+                "dropped malformed message",
+                key=key,
+                expected=self.msg_type.__name__,
+                error=str(exc),
+                errors=self.error_count,
+            )
+            return
+        try:
+            self._callback(msg)
+        except Exception as exc:  # noqa: BLE001 - a callback bug must not kill the stream
+            self.callback_error_count += 1
+            self._bus.stats.add(self.key, "callback_errors", error=repr(exc))
+            log.throttled(
+                f"callback:{self.key}",
+                self._bus.config.error_log_period_s,
+                logging.ERROR,
+                "subscriber callback raised",
+                key=key,
+                error=repr(exc),
+                exc_info=True,
+            )
+
+    def undeclare(self) -> None:
+        self._stop.set()
+        self._wake.set()
+        try:
+            self._sub.undeclare()
+        except Exception:  # noqa: BLE001
+            pass
+
+
+class LatestCache(Generic[M]):
+    """Keeps only the newest sample on a key; decodes lazily in :meth:`get`.
+
+    The Zenoh callback stores raw bytes only, so a 10 Hz image stream costs nothing until
+    someone reads it, and reading always gives the newest message.
+    """
+
+    def __init__(self, bus: Bus, key: str, msg_type: type[M]) -> None:
+        self.key = key
+        self.msg_type = msg_type
+        self.error_count = 0
+        self.received_count = 0
+        self._bus = bus
+        self._lock = threading.Lock()
+        self._cond = threading.Condition(self._lock)
+        self._raw: bytes | None = None
+        self._seq = 0
+        self._decoded_seq = 0
+        self._msg: M | None = None
+        self._received_at: float | None = None
+        self._sub = bus.session.declare_subscriber(key, self._on_sample)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        data = sample.payload.to_bytes()
+        with self._cond:
+            self._raw = data
+            self._seq += 1
+            self.received_count += 1
+            self._received_at = time.monotonic()
+            self._cond.notify_all()
+        self._bus.stats.add(self.key, "received")
+
+    def get(self) -> M | None:
+        """The newest valid message, or None if none arrived yet."""
+        with self._lock:
+            if self._seq != self._decoded_seq and self._raw is not None:
+                raw, self._decoded_seq = self._raw, self._seq
+                try:
+                    self._msg = decode(raw, expected=self.msg_type)
+                except MessageError as exc:
+                    self.error_count += 1
+                    self._bus.stats.add(self.key, "decode_errors", error=str(exc))
+                    log.throttled(
+                        f"decode:{self.key}",
+                        self._bus.config.error_log_period_s,
+                        logging.WARNING,
+                        "dropped malformed message",
+                        key=self.key,
+                        error=str(exc),
+                    )
+            return self._msg
+
+    @property
+    def age(self) -> float | None:
+        """Seconds (monotonic) since the last sample arrived; None if never."""
+        with self._lock:
+            return None if self._received_at is None else time.monotonic() - self._received_at
+
+    def wait_new(self, timeout: float) -> M | None:
+        """Wait for a sample newer than the current one; returns it (None on timeout)."""
+        with self._cond:
+            seq = self._seq
+            if not self._cond.wait_for(lambda: self._seq != seq, timeout):
+                return None
+        return self.get()
+
+    def undeclare(self) -> None:
+        try:
+            self._sub.undeclare()
+        except Exception:  # noqa: BLE001
+            pass
+
+
+class LivelinessWatcher:
+    """Calls ``callback(service, alive)`` when a service's token appears or disappears."""
+
+    def __init__(self, bus: Bus, key: str, callback: Callable[[str, bool], Any]) -> None:
+        self.key = key
+        self._bus = bus
+        self._callback = callback
+        self._lock = threading.Lock()
+        self.alive: set[str] = set()
+        self._sub = bus.session.liveliness().declare_subscriber(key, self._on_sample, history=True)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        service = self._bus.service_of(str(sample.key_expr))
+        alive = sample.kind == zenoh.SampleKind.PUT
+        with self._lock:
+            if alive:
+                self.alive.add(service)
+            else:
+                self.alive.discard(service)
+        try:
+            self._callback(service, alive)
+        except Exception as exc:  # noqa: BLE001
+            log.error("liveliness callback raised", key=str(sample.key_expr), error=repr(exc))
+
+    def undeclare(self) -> None:
+        try:
+            self._sub.undeclare()
+        except Exception:  # noqa: BLE001
+            pass
+
+
+# --------------------------------------------------------------------------- the bus
+
+
+class Bus:
+    """One Zenoh session of one process, with typed helpers; use as a context manager.
+
+    ``Bus(config)`` uses the config as given; ``Bus()`` loads ``configs/bus.toml`` and the
+    ``QM_ZENOH_*`` environment overrides. ``clock`` stamps messages the bus creates itself
+    (heartbeats, action envelopes): pass the robot clock (sim time) when you have one.
+    """
+
+    def __init__(
+        self,
+        config: BusConfig | None = None,
+        robot: str = DEFAULT_ROBOT,
+        *,
+        clock: Callable[[], float] | None = None,
+    ) -> None:
+        self.config = config if config is not None else load_bus_config()
+        self.robot = robot
+        self.prefix = f"qm/{robot}/"
+        self.clock: Callable[[], float] = clock or time.time
+        self.stats = BusStats()
+        self._entities: list[Any] = []
+        self._lock = threading.Lock()
+        self._closed = False
+        self.session: zenoh.Session = open_session(self.config)
+        log.debug(
+            "bus open",
+            mode=self.config.mode,
+            connect=",".join(self.config.connect),
+            zid=str(self.session.zid()),
+        )
+
+    # keys ------------------------------------------------------------------------
+    def key(self, topic: str) -> str:
+        """``"sim/lowstate"`` → ``"qm/dog1/sim/lowstate"`` (absolute ``qm/...`` kept)."""
+        topic = topic.strip("/")
+        return topic if topic.startswith("qm/") else self.prefix + topic
+
+    def service_of(self, key: str) -> str:
+        """The ``<service>`` part of a full key of this robot."""
+        rest = key[len(self.prefix) :] if key.startswith(self.prefix) else key
+        return rest.split("/", 1)[0]
+
+    def _track(self, entity: Any) -> Any:
+        with self._lock:
+            if self._closed:
+                raise RuntimeError("bus is closed")
+            self._entities.append(entity)
+        return entity
+
+    # pub/sub ---------------------------------------------------------------------
+    def publisher(self, topic: str, msg_type: type[M], kind: Kind = "control") -> TypedPublisher[M]:
+        """Declare a typed publisher; ``kind`` picks the QoS (see the module doc)."""
+        return self._track(TypedPublisher(self, self.key(topic), msg_type, kind))
+
+    def subscribe(
+        self,
+        topic: str,
+        msg_type: type[M],
+        callback: Callable[[M], Any],
+        *,
+        latest_only: bool = False,
+    ) -> TypedSubscriber[M]:
+        """Subscribe with a callback (runs on a Zenoh thread, or a worker if latest_only)."""
+        return self._track(TypedSubscriber(self, self.key(topic), msg_type, callback, latest_only))
+
+    def latest(self, topic: str, msg_type: type[M]) -> LatestCache[M]:
+        """A latest-only cache of ``topic``: ``cache.get()`` returns the newest message."""
+        return self._track(LatestCache(self, self.key(topic), msg_type))
+
+    # liveliness ------------------------------------------------------------------
+    def declare_alive(self, service: str) -> zenoh.LivelinessToken:
+        """Declare the liveliness token ``<service>/alive``; it vanishes with the process."""
+        token = self.session.liveliness().declare_token(self.key(f"{service}/alive"))
+        return self._track(token)
+
+    def watch_liveliness(
+        self, callback: Callable[[str, bool], Any], service: str = "*"
+    ) -> LivelinessWatcher:
+        """Watch ``<service>/alive`` tokens (``*``: all services); already-alive ones are
+        reported at once."""
+        return self._track(LivelinessWatcher(self, self.key(f"{service}/alive"), callback))
+
+    def alive_services(self, timeout: float = 1.0) -> set[str]:
+        """Services whose liveliness token is currently visible (a one-shot query)."""
+        replies = self.session.liveliness().get(self.key("*/alive"), timeout=timeout)
+        out = set()
+        for reply in replies:
+            if reply.ok is not None:
+                out.add(self.service_of(str(reply.ok.key_expr)))
+        return out
+
+    # actions ---------------------------------------------------------------------
+    def action_server(
+        self,
+        service: str,
+        name: str,
+        goal_type: type[Message],
+        execute: Callable[[GoalHandle], Message | None],
+        *,
+        accept: Callable[[Message], tuple[bool, str]] | None = None,
+        policy: Literal["reject", "preempt", "parallel"] = "reject",
+    ) -> ActionServer:
+        """Serve action ``<service>/action/<name>``; see :class:`ActionServer`."""
+        return self._track(ActionServer(self, service, name, goal_type, execute, accept, policy))
+
+    def action_client(self, service: str, name: str) -> ActionClient:
+        """A client of action ``<service>/action/<name>``; see :class:`ActionClient`."""
+        return self._track(ActionClient(self, service, name))
+
+    # lifecycle -------------------------------------------------------------------
+    def close(self, timeout: float | None = None) -> bool:
+        """Undeclare everything and close the session within ``timeout`` (default
+        ``close_timeout_s``); True when the close completed."""
+        with self._lock:
+            if self._closed:
+                return True
+            self._closed = True
+            entities = list(reversed(self._entities))
+            self._entities.clear()
+        budget = self.config.close_timeout_s if timeout is None else timeout
+        for e in entities:  # stop our own workers first: they must not touch a dead session
+            stop = getattr(e, "stop", None)
+            if callable(stop):
+                try:
+                    stop(min(0.3, budget / 4))
+                except Exception:  # noqa: BLE001
+                    pass
+        return safe_close(self.session, budget, entities)
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def __enter__(self) -> Bus:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+# --------------------------------------------------------------------------- actions
+
+
+class ActionFailed(Exception):
+    """Raise from an action's execute function to end the goal as ``failed``."""
+
+
+class ActionCanceled(Exception):
+    """Raise from an action's execute function to end the goal as ``canceled``."""
+
+
+def _messages() -> Any:
+    from quadmanip.common import messages
+
+    return messages
+
+
+class GoalHandle:
+    """The server side of one accepted goal, handed to the execute function."""
+
+    def __init__(self, server: ActionServer, goal_id: str, goal: Message) -> None:
+        self.goal_id = goal_id
+        self.goal = goal
+        self._server = server
+        self.cancel_event = threading.Event()
+
+    @property
+    def cancel_requested(self) -> bool:
+        return self.cancel_event.is_set()
+
+    def check_cancel(self) -> None:
+        """Raise :class:`ActionCanceled` if a cancel was requested (call in loops)."""
+        if self.cancel_event.is_set():
+            raise ActionCanceled("canceled on request")
+
+    def feedback(self, progress: float, text: str = "") -> None:
+        """Publish an :class:`ActionFeedback` (progress in [0, 1])."""
+        self._server._publish_feedback(self.goal_id, progress, text)
+
+
+class ActionServer:
+    """Serves one action: goal query → accept/reject → execute thread → feedback → result.
+
+    ``execute(handle)`` runs in its own thread per goal and returns the result message (or
+    None) for ``succeeded``; it raises :class:`ActionFailed` (reason) for ``failed`` and
+    :class:`ActionCanceled` for ``canceled`` (poll ``handle.cancel_requested`` or call
+    ``handle.check_cancel()``); any other exception ends the goal ``failed``.
+    ``accept(goal)`` may reject a goal up front with a reason. ``policy`` for a goal that
+    arrives while another runs: ``reject`` ("busy"), ``preempt`` (cancel the running goal),
+    or ``parallel``.
+    """
+
+    RESULTS_KEPT = 64
+
+    def __init__(
+        self,
+        bus: Bus,
+        service: str,
+        name: str,
+        goal_type: type[Message],
+        execute: Callable[[GoalHandle], Message | None],
+        accept: Callable[[Message], tuple[bool, str]] | None = None,
+        policy: Literal["reject", "preempt", "parallel"] = "reject",
+    ) -> None:
+        if policy not in ("reject", "preempt", "parallel"):
+            raise ValueError(f"unknown policy {policy!r}")
+        self.base = bus.key(f"{service}/action/{name}")
+        self.goal_type = goal_type
+        self._bus = bus
+        self._execute = execute
+        self._accept = accept
+        self._policy = policy
+        self._lock = threading.Lock()
+        self._active: dict[str, GoalHandle] = {}
+        self._threads: dict[str, threading.Thread] = {}
+        self._results: OrderedDict[str, Any] = OrderedDict()
+        self._stopping = False
+        msgs = _messages()
+        self._feedback_pub = TypedPublisher(
+            bus, f"{self.base}/feedback", msgs.ActionFeedback, "event"
+        )
+        self._result_pub = TypedPublisher(bus, f"{self.base}/result", msgs.ActionResult, "event")
+        s = bus.session
+        self._queryables = [
+            s.declare_queryable(f"{self.base}/goal", self._on_goal),
+            s.declare_queryable(f"{self.base}/cancel", self._on_cancel),
+            s.declare_queryable(f"{self.base}/status", self._on_status),
+        ]
+
+    @property
+    def active_goals(self) -> list[str]:
+        with self._lock:
+            return list(self._active)
+
+    def _reply(self, query: zenoh.Query, msg: Message) -> None:
+        try:
+            query.reply(query.key_expr, encode(msg))
+        except Exception as exc:  # noqa: BLE001
+            log.warning("action reply failed", key=str(query.key_expr), error=repr(exc))
+
+    def _respond(self, query: zenoh.Query, goal_id: str, accepted: bool, reason: str) -> None:
+        resp = _messages().ActionResponse(
+            stamp=self._bus.clock(), goal_id=goal_id, accepted=accepted, reason=reason
+        )
+        self._reply(query, resp)
+
+    def _on_goal(self, query: zenoh.Query) -> None:
+        msgs = _messages()
+        with query:
+            payload = query.payload
+            try:
+                goal_msg = decode(payload.to_bytes() if payload else b"", expected=msgs.ActionGoal)
+            except MessageError as exc:
+                self._bus.stats.add(f"{self.base}/goal", "decode_errors", error=str(exc))
+                log.throttled(
+                    f"decode:{self.base}/goal",
+                    1.0,
+                    logging.WARNING,
+                    "malformed action goal",
+                    error=str(exc),
+                )
+                self._respond(query, "", False, f"malformed goal: {exc}")
+                return
+            gid = goal_msg.goal_id
+            if not isinstance(goal_msg.goal, self.goal_type):
+                self._respond(
+                    query,
+                    gid,
+                    False,
+                    f"wrong goal type {type(goal_msg.goal).__name__}, "
+                    f"expected {self.goal_type.__name__}",
+                )
+                return
+            if self._accept is not None:
+                try:
+                    ok, reason = self._accept(goal_msg.goal)
+                except Exception as exc:  # noqa: BLE001
+                    ok, reason = False, f"accept check raised {exc!r}"
+                if not ok:
+                    self._respond(query, gid, False, reason or "rejected")
+                    return
+            with self._lock:
+                if self._stopping:
+                    self._respond(query, gid, False, "server shutting down")
+                    return
+                if gid in self._active or gid in self._results:
+                    self._respond(query, gid, False, "duplicate goal_id")
+                    return
+                if self._active and self._policy == "reject":
+                    busy = ",".join(self._active)
+                    self._respond(query, gid, False, f"busy with goal {busy}")
+                    return
+                if self._policy == "preempt":
+                    for other in self._active.values():
+                        other.cancel_event.set()
+                handle = GoalHandle(self, gid, goal_msg.goal)
+                self._active[gid] = handle
+                t = threading.Thread(
+                    target=self._run, args=(handle,), name=f"action:{gid}", daemon=True
+                )
+                self._threads[gid] = t
+            self._respond(query, gid, True, "")
+            log.info("goal accepted", action=self.base, goal_id=gid)
+            t.start()
+
+    def _run(self, handle: GoalHandle) -> None:
+        status, reason, result = "succeeded", "", None
+        try:
+            result = self._execute(handle)
+        except ActionCanceled as exc:
+            status, reason = "canceled", str(exc) or "canceled"
+        except ActionFailed as exc:
+            status, reason = "failed", str(exc) or "failed"
+        except Exception as exc:  # noqa: BLE001
+            status, reason = "failed", f"{type(exc).__name__}: {exc}"
+            log.error(
+                "action execute raised",
+                action=self.base,
+                goal_id=handle.goal_id,
+                error=repr(exc),
+                exc_info=True,
+            )
+        msg = _messages().ActionResult(
+            stamp=self._bus.clock(),
+            goal_id=handle.goal_id,
+            status=status,
+            reason=reason,
+            result=result,
+        )
+        with self._lock:
+            self._active.pop(handle.goal_id, None)
+            self._threads.pop(handle.goal_id, None)
+            self._results[handle.goal_id] = msg
+            while len(self._results) > self.RESULTS_KEPT:
+                self._results.popitem(last=False)
+        log.info(
+            "goal finished", action=self.base, goal_id=handle.goal_id, status=status, reason=reason
+        )
+        try:
+            self._result_pub.publish(msg)
+        except Exception as exc:  # noqa: BLE001 - a closing session; result stays queryable
+            log.warning("publishing action result failed", error=repr(exc))
+
+    def _publish_feedback(self, goal_id: str, progress: float, text: str) -> None:
+        msg = _messages().ActionFeedback(
+            stamp=self._bus.clock(), goal_id=goal_id, progress=float(progress), text=text
+        )
+        try:
+            self._feedback_pub.publish(msg)
+        except Exception as exc:  # noqa: BLE001
+            log.throttled(
+                f"feedback:{self.base}",
+                1.0,
+                logging.WARNING,
+                "publishing feedback failed",
+                error=repr(exc),
+            )
+
+    def _on_cancel(self, query: zenoh.Query) -> None:
+        msgs = _messages()
+        with query:
+            payload = query.payload
+            try:
+                cancel = decode(payload.to_bytes() if payload else b"", expected=msgs.ActionCancel)
+            except MessageError as exc:
+                self._respond(query, "", False, f"malformed cancel: {exc}")
+                return
+            with self._lock:
+                handle = self._active.get(cancel.goal_id)
+            if handle is None:
+                self._respond(query, cancel.goal_id, False, "no such active goal")
+                return
+            handle.cancel_event.set()
+            self._respond(query, cancel.goal_id, True, "cancel requested")
+
+    def _on_status(self, query: zenoh.Query) -> None:
+        with query:
+            gid = query.parameters.get("goal_id") or ""
+            with self._lock:
+                result = self._results.get(gid)
+            if result is not None:
+                self._reply(query, result)
+
+    def stop(self, timeout: float = 0.5) -> None:
+        """Cancel running goals and wait briefly for them (called by ``Bus.close``)."""
+        with self._lock:
+            self._stopping = True
+            handles = list(self._active.values())
+            threads = list(self._threads.values())
+        for h in handles:
+            h.cancel_event.set()
+        deadline = time.monotonic() + timeout
+        for t in threads:
+            t.join(max(0.0, deadline - time.monotonic()))
+
+    def undeclare(self) -> None:
+        for q in self._queryables:
+            try:
+                q.undeclare()
+            except Exception:  # noqa: BLE001
+                pass
+        self._feedback_pub.undeclare()
+        self._result_pub.undeclare()
+
+
+class ClientGoalHandle:
+    """The client side of one sent goal: acceptance, feedback, result, cancel."""
+
+    def __init__(
+        self,
+        client: ActionClient,
+        goal_id: str,
+        feedback_cb: Callable[[Any], Any] | None,
+    ) -> None:
+        self.goal_id = goal_id
+        self.accepted = False
+        self.reason = ""
+        self.feedback: list[Any] = []
+        self._client = client
+        self._feedback_cb = feedback_cb
+        self._done = threading.Event()
+        self._result: Any = None
+
+    @property
+    def done(self) -> bool:
+        return self._done.is_set()
+
+    def _set_result(self, result: Any) -> None:
+        if not self._done.is_set():
+            self._result = result
+            self._done.set()
+
+    def result(self, timeout: float | None = None, poll_s: float = 2.0) -> Any:
+        """Wait for the :class:`ActionResult` (None on timeout or if not accepted).
+
+        While waiting it polls the server's status queryable every ``poll_s`` so that a
+        result lost in transit (router restart) is still recovered.
+        """
+        if not self.accepted:
+            return None
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            remaining = None if deadline is None else deadline - time.monotonic()
+            if remaining is not None and remaining <= 0:
+                return self._result if self._done.is_set() else None
+            wait = poll_s if remaining is None else min(poll_s, remaining)
+            if self._done.wait(wait):
+                return self._result
+            polled = self._client._poll_status(self.goal_id)
+            if polled is not None:
+                self._set_result(polled)
+                return polled
+
+    def cancel(self, timeout: float = 1.0) -> bool:
+        """Ask the server to cancel; True if it acknowledged an active goal."""
+        return self._client._cancel(self.goal_id, timeout)
+
+
+class ActionClient:
+    """Sends goals to ``<service>/action/<name>``; see the module doc for the protocol."""
+
+    def __init__(self, bus: Bus, service: str, name: str) -> None:
+        msgs = _messages()
+        self.base = bus.key(f"{service}/action/{name}")
+        self._bus = bus
+        self._lock = threading.Lock()
+        self._handles: dict[str, ClientGoalHandle] = {}
+        self._subs = [
+            TypedSubscriber(bus, f"{self.base}/feedback", msgs.ActionFeedback, self._on_feedback),
+            TypedSubscriber(bus, f"{self.base}/result", msgs.ActionResult, self._on_result),
+        ]
+        self._counter = itertools.count()
+
+    def _on_feedback(self, msg: Any) -> None:
+        with self._lock:
+            h = self._handles.get(msg.goal_id)
+        if h is None:
+            return
+        h.feedback.append(msg)
+        if h._feedback_cb is not None:
+            h._feedback_cb(msg)
+
+    def _on_result(self, msg: Any) -> None:
+        with self._lock:
+            h = self._handles.pop(msg.goal_id, None)
+        if h is not None:
+            h._set_result(msg)
+
+    def _query(self, key: str, payload: bytes | None, timeout: float, params: str = "") -> Any:
+        selector = f"{key}?{params}" if params else key
+        replies = self._bus.session.get(selector, payload=payload, timeout=timeout)
+        for reply in replies:
+            if reply.ok is not None:
+                return reply.ok.payload.to_bytes()
+        return None
+
+    def send_goal(
+        self,
+        goal: Message,
+        *,
+        timeout: float = 2.0,
+        feedback_cb: Callable[[Any], Any] | None = None,
+        goal_id: str | None = None,
+    ) -> ClientGoalHandle:
+        """Send ``goal``; returns at once with ``handle.accepted`` / ``handle.reason`` set."""
+        msgs = _messages()
+        gid = goal_id or f"{uuid.uuid4().hex[:12]}-{next(self._counter)}"
+        handle = ClientGoalHandle(self, gid, feedback_cb)
+        with self._lock:
+            self._handles[gid] = handle  # before sending: feedback may beat the reply
+        envelope = msgs.ActionGoal(
+            stamp=self._bus.clock(), goal_id=gid, action=self.base, goal=goal
+        )
+        data = self._query(f"{self.base}/goal", encode(envelope), timeout)
+        if data is None:
+            handle.reason = "no action server answered"
+        else:
+            try:
+                resp = decode(data, expected=msgs.ActionResponse)
+                handle.accepted, handle.reason = bool(resp.accepted), resp.reason
+            except MessageError as exc:
+                handle.reason = f"malformed response: {exc}"
+        if not handle.accepted:
+            with self._lock:
+                self._handles.pop(gid, None)
+        return handle
+
+    def _cancel(self, goal_id: str, timeout: float) -> bool:
+        msgs = _messages()
+        data = self._query(
+            f"{self.base}/cancel",
+            encode(msgs.ActionCancel(stamp=self._bus.clock(), goal_id=goal_id)),
+            timeout,
+        )
+        if data is None:
+            return False
+        try:
+            return bool(decode(data, expected=msgs.ActionResponse).accepted)
+        except MessageError:
+            return False
+
+    def _poll_status(self, goal_id: str) -> Any:
+        msgs = _messages()
+        try:
+            data = self._query(f"{self.base}/status", None, 1.0, params=f"goal_id={goal_id}")
+        except Exception:  # noqa: BLE001 - session trouble: keep waiting for the publication
+            return None
+        if data is None:
+            return None
+        try:
+            return decode(data, expected=msgs.ActionResult)
+        except MessageError:
+            return None
+
+    def undeclare(self) -> None:
+        for s in self._subs:
+            s.undeclare()
