@@ -48,7 +48,8 @@ class ActuatorConfig:
     leg_timeout: float = 0.05
     # Damping gain on the legs in damping mode (N m s / rad).
     leg_damping_kd: float = 2.0
-    # No-load joint speeds (rad/s) for the torque-speed envelope; <= 0 disables it.
+    # No-load joint speeds (rad/s) for the torque-speed envelope, used when the robot
+    # description has no ``velocity_limits`` numeric; <= 0 disables the envelope.
     leg_max_speed: float = 30.0
     arm_max_speed: float = 6.0
     # Fraction of the no-load speed up to which full torque is available.
@@ -56,7 +57,7 @@ class ActuatorConfig:
     # Arm servo gains used before the first trajectory (holding the initial pose).
     arm_hold_kp: float = 60.0
     arm_hold_kd: float = 2.0
-    # Gripper position loop on the finger opening (N/m, N s/m) and default force (N).
+    # Gripper position loop on the finger gap (N/m, N s/m) and default force limit (N).
     gripper_kp: float = 2000.0
     gripper_kd: float = 20.0
     gripper_default_force: float = 20.0
@@ -80,11 +81,15 @@ class JointMap:
     gear: np.ndarray  # float, actuator gear (torque = gear * ctrl)
     tau_max: np.ndarray  # float, torque limit (N m or N) in joint space
 
+    max_speed: np.ndarray  # float, no-load speed (rad/s or m/s); inf = no envelope
+
     @staticmethod
-    def build(model: mujoco.MjModel, names: tuple[str, ...] | list[str]) -> JointMap:
+    def build(
+        model: mujoco.MjModel, names: tuple[str, ...] | list[str], default_speed: float
+    ) -> JointMap:
         """Find each named joint and the motor actuator that drives it directly."""
         names = tuple(names)
-        qpos, dof, act, gear, tau_max = [], [], [], [], []
+        qpos, dof, act = [], [], []
         for name in names:
             jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
             if jid < 0:
@@ -94,18 +99,71 @@ class JointMap:
             aid = _actuator_for_joint(model, jid)
             if aid < 0:
                 raise KeyError(f"no motor actuator drives joint {name!r}")
-            g = float(model.actuator_gear[aid, 0])
             act.append(aid)
-            gear.append(g)
-            tau_max.append(_torque_limit(model, aid, g))
+        return JointMap._with_actuators(model, names, qpos, dof, act, default_speed)
+
+    @staticmethod
+    def _with_actuators(
+        model: mujoco.MjModel,
+        names: tuple[str, ...],
+        qpos: list[int],
+        dof: list[int],
+        act: list[int],
+        default_speed: float,
+    ) -> JointMap:
+        gear = [float(model.actuator_gear[a, 0]) for a in act]
+        speeds = actuator_speed_limits(model)
+        if speeds is not None:
+            max_speed = [float(speeds[a]) for a in act]
+        else:
+            max_speed = [default_speed if default_speed > 0 else np.inf] * len(act)
         return JointMap(
             names=names,
             qpos=np.asarray(qpos, dtype=np.intp),
             dof=np.asarray(dof, dtype=np.intp),
             act=np.asarray(act, dtype=np.intp),
             gear=np.asarray(gear, dtype=float),
-            tau_max=np.asarray(tau_max, dtype=float),
+            tau_max=np.asarray(
+                [_torque_limit(model, a, g) for a, g in zip(act, gear, strict=True)], dtype=float
+            ),
+            max_speed=np.asarray(max_speed, dtype=float),
         )
+
+
+def actuator_speed_limits(model: mujoco.MjModel) -> np.ndarray | None:
+    """Per-actuator no-load speeds from the description's ``velocity_limits`` numeric."""
+    nid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_NUMERIC, "velocity_limits")
+    if nid < 0:
+        return None
+    adr, size = int(model.numeric_adr[nid]), int(model.numeric_size[nid])
+    if size != model.nu:
+        log.warning("velocity_limits size differs from the number of actuators", size=size)
+        return None
+    return np.asarray(model.numeric_data[adr : adr + size], dtype=float)
+
+
+def _gripper_map(model: mujoco.MjModel, joints: tuple[str, ...], actuator: str) -> JointMap:
+    """The gripper: its finger joints (the gap is their sum) and its single actuator."""
+    aid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, actuator)
+    if aid < 0:
+        raise KeyError(f"actuator {actuator!r} not in the model")
+    qpos, dof = [], []
+    for name in joints:
+        jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
+        if jid < 0:
+            raise KeyError(f"joint {name!r} not in the model")
+        qpos.append(int(model.jnt_qposadr[jid]))
+        dof.append(int(model.jnt_dofadr[jid]))
+    jm = JointMap._with_actuators(model, joints, [aid], [aid], [aid], np.inf)
+    return JointMap(
+        names=joints,
+        qpos=np.asarray(qpos, dtype=np.intp),
+        dof=np.asarray(dof, dtype=np.intp),
+        act=jm.act,
+        gear=jm.gear,
+        tau_max=jm.tau_max,
+        max_speed=jm.max_speed,
+    )
 
 
 def _actuator_for_joint(model: mujoco.MjModel, jid: int) -> int:
@@ -131,7 +189,11 @@ def _torque_limit(model: mujoco.MjModel, aid: int, gear: float) -> float:
 
 
 def torque_speed_clamp(
-    tau: np.ndarray, dq: np.ndarray, tau_max: np.ndarray, max_speed: float, corner: float
+    tau: np.ndarray,
+    dq: np.ndarray,
+    tau_max: np.ndarray,
+    max_speed: np.ndarray | float,
+    corner: float,
 ) -> np.ndarray:
     """Clamp torques to ``|tau| <= tau_max`` and to a linear torque-speed envelope.
 
@@ -140,10 +202,10 @@ def torque_speed_clamp(
     torque (opposite to the motion) keeps the full limit.
     """
     tau = np.clip(tau, -tau_max, tau_max)
-    if max_speed <= 0.0:
-        return tau
-    w_c = corner * max_speed
-    scale = np.clip((max_speed - np.abs(dq)) / max(max_speed - w_c, 1e-9), 0.0, 1.0)
+    max_speed = np.asarray(max_speed, dtype=float)
+    with np.errstate(invalid="ignore"):
+        scale = np.clip((max_speed - np.abs(dq)) / ((1.0 - corner) * max_speed), 0.0, 1.0)
+    scale = np.where(np.isfinite(max_speed) & (max_speed > 0), scale, 1.0)
     driving = tau * dq > 0.0
     lim = tau_max * scale
     return np.where(driving, np.clip(tau, -lim, lim), tau)
@@ -200,14 +262,15 @@ class ActuatorLayer:
         leg_joints: tuple[str, ...] | list[str],
         arm_joints: tuple[str, ...] | list[str],
         gripper_joints: tuple[str, ...] | list[str],
+        gripper_actuator: str = "gripper",
     ) -> None:
         if len(leg_joints) != N_LEG or len(arm_joints) != N_ARM:
             raise ValueError("expected 12 leg joints and 4 arm joints")
         self.model = model
         self.config = config
-        self.legs = JointMap.build(model, leg_joints)
-        self.arm = JointMap.build(model, arm_joints)
-        self.gripper = JointMap.build(model, gripper_joints)
+        self.legs = JointMap.build(model, leg_joints, config.leg_max_speed)
+        self.arm = JointMap.build(model, arm_joints, config.arm_max_speed)
+        self.gripper = _gripper_map(model, tuple(gripper_joints), gripper_actuator)
         self.rejected = 0
         self.reject_reasons: dict[str, int] = {}
         # Legs: start in damping, no command yet.
@@ -317,7 +380,7 @@ class ActuatorLayer:
 
     # ------------------------------------------------------------------ gripper
     def gripper_gap(self, data: mujoco.MjData) -> float:
-        """Finger gap (m): the sum of the two finger slide positions (0 = closed)."""
+        """Finger gap (m): the sum of the finger slide positions (0 = closed)."""
         return float(np.sum(data.qpos[self.gripper.qpos]))
 
     def gripper_gap_range(self) -> tuple[float, float]:
@@ -352,7 +415,7 @@ class ActuatorLayer:
         else:
             tau_leg = -cfg.leg_damping_kd * dq
         tau_leg = torque_speed_clamp(
-            tau_leg, dq, self.legs.tau_max, cfg.leg_max_speed, cfg.torque_speed_corner
+            tau_leg, dq, self.legs.tau_max, self.legs.max_speed, cfg.torque_speed_corner
         )
         # Arm.
         qa = data.qpos[self.arm.qpos]
@@ -363,28 +426,25 @@ class ActuatorLayer:
             seg = self._arm_segments[0]
             qd, dqd = hermite(seg.t, seg.q, seg.dq, now)
             kp_a, kd_a = seg.kp, seg.kd
-        else:
+        else:  # no trajectory has started yet: the servos hold their start pose
             if self._arm_hold is None:
                 self._arm_hold = qa.copy()
             qd, dqd = self._arm_hold, np.zeros(N_ARM)
             kp_a = np.full(N_ARM, cfg.arm_hold_kp)
             kd_a = np.full(N_ARM, cfg.arm_hold_kd)
-        if self._arm_segments and self._arm_segments[0].t[0] <= now:
-            # Once a trajectory has run, its end pose becomes the hold pose.
-            self._arm_hold = None
         tau_arm = kp_a * (qd - qa) + kd_a * (dqd - dqa)
         tau_arm = torque_speed_clamp(
-            tau_arm, dqa, self.arm.tau_max, cfg.arm_max_speed, cfg.torque_speed_corner
+            tau_arm, dqa, self.arm.tau_max, self.arm.max_speed, cfg.torque_speed_corner
         )
-        # Gripper: each finger tracks half the gap, force clamped to max_force.
-        qg = data.qpos[self.gripper.qpos]
-        dqg = data.qvel[self.gripper.dof]
+        # Gripper: one actuator pulls the gap tendon (both fingers, synchronised by the
+        # gripper's linkage); position loop on the gap, force clamped to max_force.
+        gap = float(np.sum(data.qpos[self.gripper.qpos]))
+        gap_dot = float(np.sum(data.qvel[self.gripper.dof]))
         if self._grip_gap is None:
-            self._grip_gap = float(np.sum(qg))
-        per_finger = self._grip_gap / len(self.gripper.names)
-        f = cfg.gripper_kp * (per_finger - qg) - cfg.gripper_kd * dqg
-        fmax = np.minimum(self._grip_force, self.gripper.tau_max)
-        f = np.clip(f, -fmax, fmax)
+            self._grip_gap = gap
+        f = cfg.gripper_kp * (self._grip_gap - gap) - cfg.gripper_kd * gap_dot
+        fmax = min(self._grip_force, float(self.gripper.tau_max[0]))
+        f = np.array([np.clip(f, -fmax, fmax)])
         # Write ctrl (ctrl = tau / gear).
         self.tau = np.zeros(self.model.nu)
         for jm, tau in ((self.legs, tau_leg), (self.arm, tau_arm), (self.gripper, f)):

@@ -24,6 +24,9 @@ F_GRIP = 40.0
 
 
 def _model() -> mujoco.MjModel:
+    """Fixed-base stand-in: one hinge per robot joint, the robot's tendon-driven gripper
+    (two slides synchronised by an equality, one motor on the gap tendon) and the
+    description's ``velocity_limits`` numeric."""
     bodies, motors = [], []
     for i, name in enumerate(LEG_JOINTS + ARM_JOINTS):
         bodies.append(
@@ -36,16 +39,21 @@ def _model() -> mujoco.MjModel:
     for k, name in enumerate(GRIPPER_JOINTS):
         bodies.append(
             f'<body name="b_{name}" pos="20 {k} 0"><joint name="{name}" type="slide" '
-            f'axis="0 1 0" range="0 0.05" limited="true"/><geom type="box" size="0.01 0.01 0.01"'
-            ' mass="0.05"/></body>'
+            f'axis="0 1 0" range="0 0.05" limited="true" damping="2"/>'
+            '<geom type="box" size="0.01 0.01 0.01" mass="0.05"/></body>'
         )
-        motors.append(f'<motor joint="{name}" ctrlrange="{-F_GRIP} {F_GRIP}" ctrllimited="true"/>')
+    motors.append(f'<motor name="gripper" tendon="gap" ctrlrange="{-F_GRIP} {F_GRIP}"/>')
+    speeds = " ".join(["30"] * 12 + ["6"] * 4 + ["0.15"])
     xml = (
         '<mujoco><option gravity="0 0 0" timestep="0.001"/><worldbody>'
         + "".join(bodies)
-        + "</worldbody><actuator>"
+        + '</worldbody><tendon><fixed name="gap"><joint joint="gripper_left" coef="1"/>'
+        '<joint joint="gripper_right" coef="1"/></fixed></tendon>'
+        '<equality><joint joint1="gripper_right" joint2="gripper_left"/></equality>'
+        "<actuator>"
         + "".join(motors)
-        + "</actuator></mujoco>"
+        + f'</actuator><custom><numeric name="velocity_limits" data="{speeds}"/></custom>'
+        "</mujoco>"
     )
     return mujoco.MjModel.from_xml_string(xml)
 
@@ -54,7 +62,7 @@ def _model() -> mujoco.MjModel:
 def layer():
     m = _model()
     d = mujoco.MjData(m)
-    cfg = ActuatorConfig(leg_max_speed=30.0, torque_speed_corner=0.5, leg_damping_kd=2.0)
+    cfg = ActuatorConfig(torque_speed_corner=0.5, leg_damping_kd=2.0)
     return m, d, ActuatorLayer(m, cfg, LEG_JOINTS, ARM_JOINTS, GRIPPER_JOINTS)
 
 
@@ -62,11 +70,13 @@ def _leg_cmd(q=0.0, dq=0.0, kp=0.0, kd=0.0, ff=0.0):
     return tuple(np.full(12, v, dtype=float) for v in (q, dq, kp, kd, ff))
 
 
-def test_torque_limits_come_from_ctrlrange(layer):
+def test_limits_come_from_the_model(layer):
     _, _, act = layer
     assert np.allclose(act.legs.tau_max, TAU_LEG)
     assert np.allclose(act.arm.tau_max, TAU_ARM)
     assert np.allclose(act.gripper.tau_max, F_GRIP)
+    assert np.allclose(act.legs.max_speed, 30.0)
+    assert np.allclose(act.arm.max_speed, 6.0)
 
 
 def test_pd_feedforward_law_and_clamp(layer):
@@ -253,14 +263,16 @@ def test_gripper_force_clamped_to_max_force(layer):
     assert act.set_gripper_command(d.time, 0.0, 7.5)
     act.apply(d)
     np.testing.assert_allclose(d.ctrl[act.gripper.act], -7.5)
-    # Close to the target: proportional control on the per-finger half gap.
+    # Close to the target: proportional control on the gap (sum of the two fingers).
     d.qpos[act.gripper.qpos] = 0.0201
     assert act.set_gripper_command(d.time, 0.04, 30.0)
     act.apply(d)
-    np.testing.assert_allclose(d.ctrl[act.gripper.act], 2000.0 * (0.02 - 0.0201), atol=1e-9)
-    # In physics the fingers settle at the commanded gap.
+    np.testing.assert_allclose(d.ctrl[act.gripper.act], 2000.0 * (0.04 - 0.0402), atol=1e-9)
+    # In physics the fingers settle at the commanded gap, symmetrically.
     assert act.set_gripper_command(d.time, 0.06, 30.0)
-    for _ in range(1000):
+    for _ in range(1500):
         act.apply(d)
         mujoco.mj_step(m, d)
     assert act.gripper_gap(d) == pytest.approx(0.06, abs=5e-4)
+    q = d.qpos[act.gripper.qpos]
+    assert q[0] == pytest.approx(q[1], abs=1e-3)
