@@ -76,19 +76,17 @@ class ArmGeometry:
         return math.hypot(self.d3, self.d4)
 
     @classmethod
-    def from_description(cls) -> ArmGeometry:
-        """Reads d1..d5, joint ranges and the arm mount from the MJCF robot description."""
+    def from_description(cls, model=None) -> ArmGeometry:  # noqa: ANN001 - mujoco.MjModel
+        """Reads d1..d5, joint ranges and the arm mount from the MJCF robot description.
+
+        d1..d5 come from ``quadmanip.common.robot_description.arm_dimensions()`` when that
+        module exists, else straight from the model's body/site offsets (same numbers).
+        """
         import mujoco
-        from quadmanip.common import robot_description as rd
 
-        dims = rd.arm_dimensions()
-
-        def _get(name: str) -> float:
-            if isinstance(dims, dict):
-                return float(dims[name])
-            return float(getattr(dims, name))
-
-        model = _load_description_model()
+        if model is None:
+            model = _load_description_model()
+        dims = _dimensions(model)
         q_min, q_max = [], []
         for jname in ARM_JOINTS:
             jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, jname)
@@ -102,16 +100,48 @@ class ArmGeometry:
             q_max.append(float(hi))
         pos, quat = _arm_base_in_base(model)
         return cls(
-            d1=_get("d1"),
-            d2=_get("d2"),
-            d3=_get("d3"),
-            d4=_get("d4"),
-            d5=_get("d5"),
+            d1=dims["d1"],
+            d2=dims["d2"],
+            d3=dims["d3"],
+            d4=dims["d4"],
+            d5=dims["d5"],
             q_min=tuple(q_min),  # type: ignore[arg-type]
             q_max=tuple(q_max),  # type: ignore[arg-type]
             arm_base_pos=pos,
-            arm_base_quat=quat,
+            arm_base_quat=quat,  # type: ignore[arg-type]
         )
+
+
+def _dimensions(model) -> dict[str, float]:  # noqa: ANN001
+    try:
+        from quadmanip.common import robot_description as rd
+
+        dims = rd.arm_dimensions()
+    except (ImportError, AttributeError):
+        dims = None
+    if dims is not None:
+        if isinstance(dims, dict):
+            return {k: float(dims[k]) for k in ("d1", "d2", "d3", "d4", "d5")}
+        return {k: float(getattr(dims, k)) for k in ("d1", "d2", "d3", "d4", "d5")}
+    import mujoco
+
+    def body_pos(name: str) -> np.ndarray:
+        bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)
+        if bid < 0:
+            raise ValueError(f"robot description lacks body {name!r}")
+        return np.asarray(model.body_pos[bid], dtype=float)
+
+    sid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "gripper_tcp")
+    if sid < 0:
+        raise ValueError("robot description lacks site 'gripper_tcp'")
+    link3 = body_pos("arm_link3")
+    return {
+        "d1": float(body_pos("arm_link1")[2]),
+        "d2": float(body_pos("arm_link2")[2]),
+        "d3": float(link3[2]),
+        "d4": float(link3[0]),
+        "d5": float(model.site_pos[sid][0] + body_pos("arm_link4")[0]),
+    }
 
 
 ARM_JOINTS: tuple[str, str, str, str] = ("arm_j1", "arm_j2", "arm_j3", "arm_j4")
@@ -119,13 +149,10 @@ ARM_JOINTS: tuple[str, str, str, str] = ("arm_j1", "arm_j2", "arm_j3", "arm_j4")
 
 def _load_description_model():  # noqa: ANN202 - mujoco types are not exported statically
     import mujoco
-    from quadmanip.common import robot_description as rd
 
-    loader = getattr(rd, "load_mujoco_model", None)
-    if loader is not None:
-        return loader()
-    path = getattr(rd, "MJCF_PATH", None) or rd.mjcf_path()
-    return mujoco.MjModel.from_xml_path(str(path))
+    from quadmanip.paths import CONFIG_DIR
+
+    return mujoco.MjModel.from_xml_path(str(CONFIG_DIR / "robot" / "quadmanip_dog.xml"))
 
 
 def _arm_base_in_base(model) -> tuple[tuple[float, float, float], tuple[float, ...]]:  # noqa: ANN001

@@ -1,0 +1,98 @@
+"""Configuration of the manipulation service (``configs/manipulation.toml``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from quadmanip.common.config import load_config
+from quadmanip.services.manipulation.gripper import GripperConfig
+
+__all__ = [
+    "GraspConfig",
+    "ManipulationConfig",
+    "MotionConfig",
+    "PostureSpec",
+    "load_manipulation_config",
+]
+
+
+@dataclass(frozen=True)
+class MotionConfig:
+    """Arm rate limits (rad/s, rad/s^2), servo gains and trajectory sampling."""
+
+    v_max: tuple[float, float, float, float] = (2.0, 2.0, 2.5, 3.0)
+    a_max: tuple[float, float, float, float] = (6.0, 6.0, 8.0, 10.0)
+    kp: tuple[float, float, float, float] = (80.0, 80.0, 40.0, 10.0)
+    kd: tuple[float, float, float, float] = (3.0, 3.0, 1.5, 0.3)
+    dt: float = 0.02
+    linear_speed: float = 0.15
+    angular_speed: float = 1.0
+    # Elbow reference used when a posture or goal gives no current joints.
+    elbow_ref: tuple[float, float, float, float] = (0.3, 1.2, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class PostureSpec:
+    """A named arm posture: joints ``q`` or a tool target ``tcp = [x, z, pitch, roll]``.
+
+    Exactly one of the two is given. ``tcp`` is in the arm_base frame and is solved with
+    the analytic IK (elbow closest to ``MotionConfig.elbow_ref``).
+    """
+
+    q: tuple[float, ...] = ()
+    tcp: tuple[float, ...] = ()
+    doc: str = ""
+
+
+@dataclass(frozen=True)
+class GraspConfig:
+    """Algorithm 6 parameters (names follow the paper's constants)."""
+
+    # Height of the grasp-ready pose above a vertical grasp point (GRASP_READY_Z).
+    grasp_ready_z: float = 0.10
+    # Stand-off of the grasp-ready pose before a horizontal grasp (GRASP_READY_X), m
+    # behind the grasp point along x.
+    grasp_ready_x: float = 0.10
+    # Furthest TCP x (arm_base frame) used for horizontal grasps (MANIPULATOR_X_LIM).
+    manipulator_x_lim: float = 0.42
+    # Body pose limits of the standing robot (offsets from the nominal pose).
+    max_lateral_shift: float = 0.06
+    max_forward_shift: float = 0.06
+    max_crouch: float = 0.10
+    # Lift after the grasp (m) and hold-to-verify time (s).
+    lift_height: float = 0.10
+    verify_time: float = 0.3
+    # Time the body is given to reach a commanded pose offset (s).
+    body_settle_time: float = 1.0
+    # Tolerance between the commanded and measured arm joints at the end of a move (rad).
+    arm_tolerance: float = 0.08
+    # Extra time beyond a trajectory's end before the arm is declared stuck (s).
+    arm_timeout: float = 2.0
+    # Gripper pre-opening: object width plus this margin, clamped to the open gap.
+    open_margin: float = 0.03
+    # Place: release height above the region's top surface and retract height.
+    place_release_z: float = 0.06
+    retract_height: float = 0.10
+    # Drawer: pull distance (m) and approach stand-off in front of the handle.
+    drawer_pull: float = 0.18
+    drawer_standoff: float = 0.08
+
+
+@dataclass(frozen=True)
+class ManipulationConfig:
+    """Everything the manipulation service is configured with."""
+
+    motion: MotionConfig = field(default_factory=MotionConfig)
+    gripper: GripperConfig = field(default_factory=GripperConfig)
+    grasp: GraspConfig = field(default_factory=GraspConfig)
+    postures: dict[str, PostureSpec] = field(default_factory=dict)
+    heartbeat_period: float = 0.5
+
+
+def load_manipulation_config(name_or_path: str = "manipulation") -> ManipulationConfig:
+    """Loads and validates ``configs/manipulation.toml`` (unknown keys are errors)."""
+    cfg = load_config(ManipulationConfig, name_or_path)
+    for name, spec in cfg.postures.items():
+        if (len(spec.q) == 4) == (len(spec.tcp) == 4) or (spec.q and spec.tcp):
+            raise ValueError(f"posture {name!r}: give exactly one of q (4) or tcp (4)")
+    return cfg

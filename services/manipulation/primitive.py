@@ -1,0 +1,253 @@
+"""Transport-free execution of manipulation primitives (grasp, place, drawer, posture).
+
+A primitive is a generator-based state machine: it receives an :class:`Observation` every
+control tick (robot time, arm joints, gripper gap and effort) and answers with a list of
+commands (:class:`ArmCommand`, :class:`GripperCmd`, :class:`BodyPoseRequest`). The node
+turns those into bus messages; the tests feed them straight into the sim's actuator layer.
+Nothing here imports a transport, so every primitive is testable in-process.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Generator
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+import numpy as np
+from quadmanip.services.manipulation.arm_kinematics import ArmGeometry
+from quadmanip.services.manipulation.config import ManipulationConfig
+from quadmanip.services.manipulation.gripper import GraspMonitor, GripState
+from quadmanip.services.manipulation.trajectory import (
+    JointTrajectory,
+    MotionLimits,
+    TrajectoryError,
+    hold,
+    plan_joint_path,
+)
+
+__all__ = [
+    "ArmCommand",
+    "BodyPoseRequest",
+    "Command",
+    "GripperCmd",
+    "Observation",
+    "Primitive",
+    "PrimitiveFailed",
+    "Status",
+]
+
+
+@dataclass(frozen=True)
+class Observation:
+    """What the manipulation service measures each tick (joint encoders and gripper)."""
+
+    t: float
+    q_arm: np.ndarray
+    dq_arm: np.ndarray
+    gripper_gap: float
+    gripper_effort: float
+
+
+@dataclass(frozen=True)
+class ArmCommand:
+    """Send this trajectory to the arm (it replaces the running one from its first stamp)."""
+
+    traj: JointTrajectory
+
+
+@dataclass(frozen=True)
+class GripperCmd:
+    """Finger gap (m) with a squeeze force limit (N)."""
+
+    gap: float
+    max_force: float
+
+
+@dataclass(frozen=True)
+class BodyPoseRequest:
+    """Body offsets from the nominal standing pose (m), sent to locomotion (moveCOM)."""
+
+    x_offset: float = 0.0
+    y_offset: float = 0.0
+    z_offset: float = 0.0
+
+
+Command = ArmCommand | GripperCmd | BodyPoseRequest
+
+
+class Status(StrEnum):
+    """Lifecycle of a primitive."""
+
+    RUNNING = "running"
+    SUCCEEDED = "succeeded"
+    FAILED = "failed"
+    CANCELED = "canceled"
+
+
+class PrimitiveFailed(Exception):
+    """Raised inside a primitive to end it with a failure ``reason``."""
+
+    def __init__(self, reason: str) -> None:
+        super().__init__(reason)
+        self.reason = reason
+
+
+Script = Generator[list[Command], Observation, None]
+
+
+@dataclass
+class _Progress:
+    value: float = 0.0
+    text: str = ""
+    log: list[tuple[float, str]] = field(default_factory=list)
+
+
+class Primitive:
+    """Base class: subclasses implement :meth:`script` as a generator of command lists."""
+
+    name = "primitive"
+
+    def __init__(
+        self,
+        geom: ArmGeometry,
+        cfg: ManipulationConfig,
+        monitor: GraspMonitor | None = None,
+        body: BodyPoseRequest | None = None,
+    ) -> None:
+        self.geom = geom
+        self.cfg = cfg
+        self.limits = MotionLimits.build(geom, cfg.motion.v_max, cfg.motion.a_max)
+        # shared across primitives so that place() knows what grasp() holds
+        self.monitor = monitor if monitor is not None else GraspMonitor(cfg.gripper)
+        self.status = Status.RUNNING
+        self.reason = ""
+        self.progress = _Progress()
+        # body offset currently requested from locomotion (shared like the monitor)
+        self.body = body if body is not None else BodyPoseRequest()
+        self.t_start: float | None = None
+        self.t_end: float | None = None
+        self._gen: Script | None = None
+        self._last_obs: Observation | None = None
+
+    # -------------------------------------------------------------------- driving
+    def script(self) -> Script:  # pragma: no cover - abstract
+        """The primitive's behaviour; yields command lists, receives observations."""
+        raise NotImplementedError
+        yield []
+
+    def step(self, obs: Observation) -> list[Command]:
+        """Advances the state machine by one observation; returns commands to send."""
+        if self.status is not Status.RUNNING:
+            return []
+        self._last_obs = obs
+        self.monitor.update(obs.t, obs.gripper_gap, obs.gripper_effort)
+        try:
+            if self._gen is None:
+                self.t_start = obs.t
+                self._gen = self.script()
+                cmds = next(self._gen)
+            else:
+                cmds = self._gen.send(obs)
+        except StopIteration:
+            self.status = Status.SUCCEEDED
+            self.t_end = obs.t
+            self._note(obs.t, "succeeded", 1.0)
+            return []
+        except PrimitiveFailed as exc:
+            self.status = Status.FAILED
+            self.reason = exc.reason
+            self.t_end = obs.t
+            self._note(obs.t, f"failed: {exc.reason}")
+            return [ArmCommand(hold(obs.q_arm, obs.t))]
+        except TrajectoryError as exc:
+            self.status = Status.FAILED
+            self.reason = f"trajectory_{exc.reason}: {exc.detail}"
+            self.t_end = obs.t
+            self._note(obs.t, f"failed: {self.reason}")
+            return [ArmCommand(hold(obs.q_arm, obs.t))]
+        return cmds
+
+    def cancel(self, obs: Observation) -> list[Command]:
+        """Stops now: the arm holds where it is (a one-knot trajectory)."""
+        if self.status is Status.RUNNING:
+            self.status = Status.CANCELED
+            self.reason = "canceled"
+            self.t_end = obs.t
+            if self._gen is not None:
+                self._gen.close()
+        return [ArmCommand(hold(obs.q_arm, obs.t))]
+
+    @property
+    def done(self) -> bool:
+        """True once succeeded, failed or canceled."""
+        return self.status is not Status.RUNNING
+
+    def _note(self, t: float, text: str, value: float | None = None) -> None:
+        if value is not None:
+            self.progress.value = value
+        self.progress.text = text
+        self.progress.log.append((t, text))
+
+    # ------------------------------------------------------------- script helpers
+    def stage(self, text: str, value: float) -> None:
+        """Reports progress (0..1) and a human-readable stage name."""
+        t = self._last_obs.t if self._last_obs is not None else 0.0
+        self._note(t, text, value)
+
+    def run_trajectory(self, traj: JointTrajectory) -> Script:
+        """Sends a trajectory and waits until the arm reached its end (or fails: stuck)."""
+        obs = yield [ArmCommand(traj)]
+        g = self.cfg.grasp
+        q_end = traj.q_end
+        while True:
+            if obs.t >= traj.end_time:
+                err = float(np.max(np.abs(obs.q_arm - q_end)))
+                if err <= g.arm_tolerance and float(np.max(np.abs(obs.dq_arm))) < 0.3:
+                    return
+                if obs.t > traj.end_time + g.arm_timeout:
+                    raise PrimitiveFailed(
+                        f"arm_blocked: {err:.3f} rad from the trajectory end after timeout"
+                    )
+            obs = yield []
+
+    def move_joints(self, q_goal: np.ndarray) -> Script:
+        """Joint-space move from the measured joints to ``q_goal`` (limits enforced)."""
+        obs = self._last_obs
+        assert obs is not None
+        traj = plan_joint_path([obs.q_arm, q_goal], obs.t, self.limits, dt=self.cfg.motion.dt)
+        yield from self.run_trajectory(traj)
+
+    def wait(self, duration: float) -> Script:
+        """Idles for ``duration`` seconds of robot time."""
+        assert self._last_obs is not None
+        t_end = self._last_obs.t + duration
+        while True:
+            obs = yield []
+            if obs.t >= t_end:
+                return
+
+    def move_body(self, x: float = 0.0, y: float = 0.0, z: float = 0.0) -> Script:
+        """Requests a body offset (moveCOM) and gives locomotion time to reach it."""
+        new = BodyPoseRequest(x_offset=x, y_offset=y, z_offset=z)
+        if new == self.body:
+            return
+        self.body = new
+        yield [new]
+        yield from self.wait(self.cfg.grasp.body_settle_time)
+
+    def open_gripper(self, gap: float | None = None, settle: float = 0.4) -> Script:
+        """Opens to ``gap`` (default: fully) and waits for the fingers to move."""
+        assert self._last_obs is not None
+        full, force = self.monitor.command_open(self._last_obs.t)
+        g = full if gap is None else float(min(max(gap, 0.0), full))
+        yield [GripperCmd(g, force)]
+        yield from self.wait(settle)
+
+    def close_gripper(self, max_force: float | None = None) -> Script:
+        """Force-limited close; returns when the monitor decided holding or empty."""
+        assert self._last_obs is not None
+        gap, force = self.monitor.command_close(self._last_obs.t, max_force)
+        obs = yield [GripperCmd(gap, force)]
+        while self.monitor.state is GripState.CLOSING:
+            obs = yield []
+        del obs
