@@ -135,7 +135,39 @@ def _cmd_sim(args: argparse.Namespace, extra: list[str]) -> int:
 def _cmd_keys(args: argparse.Namespace, extra: list[str]) -> int:
     from quadmanip.common import keys
 
-    print(keys.key_table_markdown(args.robot) if args.markdown else keys.key_table_text(args.robot))
+    try:
+        keys.validate_robot_name(args.robot)
+    except ValueError as exc:
+        print(f"quadmanip keys: {exc}", file=sys.stderr)
+        return 2
+    if args.markdown:
+        print(keys.render_key_table_markdown(args.robot), end="")
+        return 0
+    rows = [
+        (keys.key(args.robot, t.name), t.msg_type.__name__, t.kind, t.direction, t.doc)
+        for t in keys.TOPICS.values()
+    ]
+    rows.append(
+        (
+            f"qm/{args.robot}/<service>/action/<name>",
+            "ActionGoal...",
+            "action",
+            "in",
+            "long-running requests",
+        )
+    )
+    rows.append(
+        (
+            f"qm/{args.robot}/<service>/alive",
+            "liveliness",
+            "-",
+            "out",
+            "present while the service runs",
+        )
+    )
+    widths = [max(len(r[i]) for r in rows) for i in range(4)]
+    for r in rows:
+        print("  ".join(c.ljust(w) for c, w in zip(r[:4], widths, strict=True)) + "  " + r[4])
     return 0
 
 

@@ -338,11 +338,11 @@ def install_stop_signals(stop_event: threading.Event) -> None:
 
 
 def resolve_services(
-    requested: str | None, config: LaunchConfig, out: TextIO
-) -> tuple[list[str], str | None]:
+    requested: str | None, config: LaunchConfig
+) -> tuple[list[str], list[str], str | None]:
     """Which services to start: ``--services`` (strict) or the config (tolerant).
 
-    Returns (names, error). Names from the command line must be registered and importable;
+    Returns (names, notes, error). Names from the command line must be registered and importable;
     names from ``launch.toml`` that are not registered yet are skipped with a note, so the
     default config can name the whole planned stack while only part of it exists.
     """
@@ -353,17 +353,18 @@ def resolve_services(
             problem = registry.get(name, None) if name in registry else "not registered"
             if problem:
                 known = ", ".join(registry) or "none registered yet"
-                return [], f"cannot start {name!r}: {problem} (registered: {known})"
-        return names, None
-    names = []
+                return [], [], f"cannot start {name!r}: {problem} (registered: {known})"
+        return names, [], None
+    names, skipped = [], []
     for name in config.services:
         if name not in registry:
-            out.write(f"up | note: {name!r} is not registered yet; skipping\n")
+            skipped.append(name)
         elif registry[name]:
-            return [], f"cannot start {name!r}: {registry[name]}"
+            return [], [], f"cannot start {name!r}: {registry[name]}"
         else:
             names.append(name)
-    return names, None
+    notes = [f"not registered yet, skipped: {', '.join(skipped)}"] if skipped else []
+    return names, notes, None
 
 
 def up(
@@ -387,10 +388,13 @@ def up(
     except ValueError as exc:
         out.write(f"up | error: {exc}\n")
         return EXIT_USAGE
-    names, error = resolve_services(services, cfg, out)
+    names, notes, error = resolve_services(services, cfg)
     if error:
         out.write(f"up | error: {error}\n")
         return EXIT_USAGE
+    # Handlers before the first child exists: a SIGTERM from now on stops the children.
+    stop_event = threading.Event()
+    install_stop_signals(stop_event)
     use_router = cfg.router if router is None else router
     if not use_router and names and not (connect or os.environ.get("QM_ZENOH_CONNECT")):
         out.write("up | note: --no-router without --connect: services use their bus defaults\n")
@@ -404,6 +408,6 @@ def up(
         router_wait_s=cfg.router_wait_s,
         out=out,
     )
-    stop_event = threading.Event()
-    install_stop_signals(stop_event)
+    for note in notes:
+        launcher.log(note)
     return launcher.run(stop_event)

@@ -1,0 +1,150 @@
+"""`quadmanip up`: router + registered services over TCP on loopback, clean stop, no orphans."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import psutil
+import pytest
+
+from quadmanip import services_registry
+from quadmanip.launcher import free_endpoint
+
+pytestmark = pytest.mark.integration
+
+START_TIMEOUT_S = 60.0  # a cold MuJoCo import on a loaded 2-core machine is slow
+
+
+class UpProcess:
+    """`quadmanip up` as a child of the test, its output collected line by line."""
+
+    def __init__(self, *args: str) -> None:
+        self.endpoint = free_endpoint()
+        env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
+        env.pop("QM_ZENOH_CONNECT", None)
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "quadmanip.cli", "up", "--listen", self.endpoint, *args],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            env=env,
+        )
+        self.lines: list[str] = []
+        self._cond = threading.Condition()
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            with self._cond:
+                self.lines.append(line.rstrip("\n"))
+                self._cond.notify_all()
+
+    @property
+    def output(self) -> str:
+        with self._cond:
+            return "\n".join(self.lines)
+
+    def wait_for(self, text: str, timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while not any(text in line for line in self.lines):
+                left = deadline - time.monotonic()
+                if left <= 0 or self.proc.poll() is not None:
+                    return any(text in line for line in self.lines)
+                self._cond.wait(min(left, 0.1))
+        return True
+
+    def descendants(self) -> list[psutil.Process]:
+        return psutil.Process(self.proc.pid).children(recursive=True)
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(5)
+
+
+def _gone(procs: list[psutil.Process], timeout: float) -> list[psutil.Process]:
+    _, alive = psutil.wait_procs(procs, timeout=timeout)
+    return [p for p in alive if p.is_running() and p.status() != psutil.STATUS_ZOMBIE]
+
+
+@pytest.fixture
+def stack():
+    ups: list[UpProcess] = []
+
+    def start(*args: str) -> UpProcess:
+        up = UpProcess(*args)
+        ups.append(up)
+        assert up.wait_for("running; Ctrl-C", START_TIMEOUT_S), up.output
+        return up
+
+    yield start
+    for up in ups:
+        leftovers = up.descendants() if up.proc.poll() is None else []
+        up.kill()
+        for p in leftovers:
+            p.kill()
+
+
+def _expected_children() -> set[str]:
+    return {"router", *(n for n, p in services_registry.available().items() if p is None)}
+
+
+def test_up_starts_everything_and_stops_on_sigterm_within_3s(stack):
+    up = stack()
+    time.sleep(1.0)  # let the services get past their imports and open their sessions
+    children = up.descendants()
+    started = {line.split("started ", 1)[1].split(" ")[0] for line in up.lines if "started " in line}
+    assert started == _expected_children(), up.output
+    assert len(children) >= len(started)
+    assert all(p.is_running() for p in children), up.output
+
+    t0 = time.monotonic()
+    up.proc.send_signal(signal.SIGTERM)
+    rc = up.proc.wait(timeout=10)
+    elapsed = time.monotonic() - t0
+    assert rc == 0, up.output
+    assert elapsed <= 3.0, f"took {elapsed:.2f} s\n{up.output}"
+    assert _gone(children, 1.0) == [], up.output
+    assert "stopped cleanly" in up.output
+
+
+def test_child_killed_externally_makes_up_exit_nonzero_naming_it(stack):
+    up = stack()
+    time.sleep(0.5)
+    # The last child started: a service if one is registered, otherwise the router.
+    victim_line = [line for line in up.lines if "started " in line][-1]
+    name = victim_line.split("started ", 1)[1].split(" ")[0]
+    pid = int(victim_line.split("(pid ", 1)[1].split(")")[0])
+    others = [p for p in up.descendants() if p.pid != pid]
+    os.kill(pid, signal.SIGKILL)
+    rc = up.proc.wait(timeout=10)
+    assert rc != 0, up.output
+    assert f"error: {name} (pid {pid}) killed by SIGKILL" in up.output, up.output
+    assert _gone(others, 1.0) == [], up.output
+
+
+def test_launcher_killed_hard_leaves_no_orphans(stack):
+    up = stack()
+    children = up.descendants()
+    assert children
+    up.proc.kill()  # SIGKILL: no chance to clean up; PR_SET_PDEATHSIG must do it
+    up.proc.wait(5)
+    assert _gone(children, 3.0) == []
+
+
+def test_up_rejects_an_unknown_service():
+    result = subprocess.run(
+        [sys.executable, "-m", "quadmanip.cli", "up", "--services", "no_such_service"],
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+    assert result.returncode == 2
+    assert "no_such_service" in result.stdout
