@@ -284,6 +284,22 @@ class ActuatorLayer:
         self._grip_gap: float | None = None
         self._grip_force = float(config.gripper_default_force)
         self.tau = np.zeros(model.nu)
+        # Legs + arm as one 16-vector (wire order) for the per-step loop.
+        self._j_qpos = np.concatenate([self.legs.qpos, self.arm.qpos])
+        self._j_dof = np.concatenate([self.legs.dof, self.arm.dof])
+        self._j_act = np.concatenate([self.legs.act, self.arm.act])
+        self._j_gear = np.concatenate([self.legs.gear, self.arm.gear])
+        self._j_tau_max = np.concatenate([self.legs.tau_max, self.arm.tau_max])
+        self._j_max_speed = np.concatenate([self.legs.max_speed, self.arm.max_speed])
+        self._j_corner = np.where(
+            np.isfinite(self._j_max_speed) & (self._j_max_speed > 0),
+            config.torque_speed_corner * self._j_max_speed,
+            np.inf,
+        )
+        self._tau16 = np.zeros(N_LEG + N_ARM)
+        self._grip_act = int(self.gripper.act[0])
+        self._grip_gear = float(self.gripper.gear[0])
+        self._grip_tau_max = float(self.gripper.tau_max[0])
 
     # ----------------------------------------------------------------- commands
     def _reject(self, what: str, reason: str) -> bool:
@@ -399,54 +415,55 @@ class ActuatorLayer:
         return LegMode.ACTIVE
 
     def apply(self, data: mujoco.MjData) -> None:
-        """Compute and write the motor torques for the current physics step."""
+        """Compute and write the motor torques for the current physics step.
+
+        Legs and arm are handled as one 16-vector (one gather, one clamp, one scatter):
+        this runs at 1 kHz in Python, so it is kept to a handful of numpy calls.
+        """
         now = float(data.time)
         cfg = self.config
+        q = data.qpos[self._j_qpos]
+        dq = data.qvel[self._j_dof]
         # Legs.
-        q = data.qpos[self.legs.qpos]
-        dq = data.qvel[self.legs.dof]
         mode = self.leg_mode_at(now)
         if mode is not self.leg_mode:
             log.info("leg mode", old=self.leg_mode.value, new=mode.value, t=round(now, 4))
             self.leg_mode = mode
+        tau = self._tau16
         if mode is LegMode.ACTIVE:
             q_des, dq_des, kp, kd, ff = self._leg_cmd  # type: ignore[misc]
-            tau_leg = kp * (q_des - q) + kd * (dq_des - dq) + ff
+            tau[:N_LEG] = kp * (q_des - q[:N_LEG]) + kd * (dq_des - dq[:N_LEG]) + ff
         else:
-            tau_leg = -cfg.leg_damping_kd * dq
-        tau_leg = torque_speed_clamp(
-            tau_leg, dq, self.legs.tau_max, self.legs.max_speed, cfg.torque_speed_corner
-        )
+            tau[:N_LEG] = -cfg.leg_damping_kd * dq[:N_LEG]
         # Arm.
-        qa = data.qpos[self.arm.qpos]
-        dqa = data.qvel[self.arm.dof]
-        while len(self._arm_segments) > 1 and self._arm_segments[1].t[0] <= now:
-            self._arm_segments.pop(0)
-        if self._arm_segments and self._arm_segments[0].t[0] <= now:
-            seg = self._arm_segments[0]
+        qa, dqa = q[N_LEG:], dq[N_LEG:]
+        segs = self._arm_segments
+        while len(segs) > 1 and segs[1].t[0] <= now:
+            segs.pop(0)
+        if segs and segs[0].t[0] <= now:
+            seg = segs[0]
             qd, dqd = hermite(seg.t, seg.q, seg.dq, now)
-            kp_a, kd_a = seg.kp, seg.kd
+            tau[N_LEG:] = seg.kp * (qd - qa) + seg.kd * (dqd - dqa)
         else:  # no trajectory has started yet: the servos hold their start pose
             if self._arm_hold is None:
                 self._arm_hold = qa.copy()
-            qd, dqd = self._arm_hold, np.zeros(N_ARM)
-            kp_a = np.full(N_ARM, cfg.arm_hold_kp)
-            kd_a = np.full(N_ARM, cfg.arm_hold_kd)
-        tau_arm = kp_a * (qd - qa) + kd_a * (dqd - dqa)
-        tau_arm = torque_speed_clamp(
-            tau_arm, dqa, self.arm.tau_max, self.arm.max_speed, cfg.torque_speed_corner
-        )
+            tau[N_LEG:] = cfg.arm_hold_kp * (self._arm_hold - qa) - cfg.arm_hold_kd * dqa
+        np.clip(tau, -self._j_tau_max, self._j_tau_max, out=tau)
+        if np.any(np.abs(dq) > self._j_corner):  # torque-speed envelope only matters here
+            tau[:] = torque_speed_clamp(
+                tau, dq, self._j_tau_max, self._j_max_speed, cfg.torque_speed_corner
+            )
         # Gripper: one actuator pulls the gap tendon (both fingers, synchronised by the
         # gripper's linkage); position loop on the gap, force clamped to max_force.
-        gap = float(np.sum(data.qpos[self.gripper.qpos]))
-        gap_dot = float(np.sum(data.qvel[self.gripper.dof]))
+        gap = float(data.qpos[self.gripper.qpos].sum())
+        gap_dot = float(data.qvel[self.gripper.dof].sum())
         if self._grip_gap is None:
             self._grip_gap = gap
         f = cfg.gripper_kp * (self._grip_gap - gap) - cfg.gripper_kd * gap_dot
-        fmax = min(self._grip_force, float(self.gripper.tau_max[0]))
-        f = np.array([np.clip(f, -fmax, fmax)])
+        fmax = min(self._grip_force, self._grip_tau_max)
+        f = min(max(f, -fmax), fmax)
         # Write ctrl (ctrl = tau / gear).
-        self.tau = np.zeros(self.model.nu)
-        for jm, tau in ((self.legs, tau_leg), (self.arm, tau_arm), (self.gripper, f)):
-            data.ctrl[jm.act] = tau / jm.gear
-            self.tau[jm.act] = tau
+        data.ctrl[self._j_act] = tau / self._j_gear
+        data.ctrl[self._grip_act] = f / self._grip_gear
+        self.tau[self._j_act] = tau
+        self.tau[self._grip_act] = f

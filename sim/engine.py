@@ -25,19 +25,18 @@ import mujoco
 import numpy as np
 from quadmanip.common import messages as msg
 from quadmanip.common.log import get_logger
+from quadmanip.common.robot_description import (
+    ARM_JOINTS,
+    BASE_BODY,
+    CAMERAS,
+    GRIPPER_JOINTS,
+    LEG_JOINTS,
+)
 from quadmanip.sim.actuators import ActuatorConfig, ActuatorLayer, LegMode
 from quadmanip.sim.disturbance import DisturbanceChannel
 from quadmanip.sim.sensors import Imu, Lidar, RgbdRenderer, SensorsConfig
 
 log = get_logger("sim.engine")
-
-# Joint names per docs/conventions.md (the robot description module holds the same lists).
-LEG_JOINTS = tuple(
-    f"{leg}_{j}" for leg in ("FL", "FR", "RL", "RR") for j in ("abad", "hip", "knee")
-)
-ARM_JOINTS = ("arm_j1", "arm_j2", "arm_j3", "arm_j4")
-GRIPPER_JOINTS = ("gripper_left", "gripper_right")
-CAMERAS = ("front_camera", "gripper_camera")
 
 
 @dataclass(frozen=True)
@@ -138,7 +137,7 @@ class SimEngine:
         self.control_dt = self.substeps * pc.timestep
         self.rng = np.random.default_rng(config.seed + config.sensors.seed)
 
-        self.base = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "base")
+        self.base = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, BASE_BODY)
         if self.base < 0:
             raise KeyError("the model has no body 'base'")
         self.robot_bodies = _robot_bodies(m, self.base)
@@ -151,7 +150,7 @@ class SimEngine:
 
         sc = config.sensors
         cr = pc.control_rate
-        self.camera_cfg = {"front_camera": sc.front_camera, "gripper_camera": sc.gripper_camera}
+        self.camera_cfg = dict(zip(CAMERAS, (sc.front_camera, sc.gripper_camera), strict=True))
         self._cam_every = {n: _every(cr, c.rate, n) for n, c in self.camera_cfg.items()}
         self._lidar_every = _every(cr, sc.lidar.rate, "lidar") if lidar else 0
         gt = config.ground_truth

@@ -7,6 +7,7 @@ so the numbers here depend only on the actuator layer, not on the robot descript
 import mujoco
 import numpy as np
 import pytest
+from quadmanip.common.robot_description import ARM_JOINTS, GRIPPER_JOINTS, LEG_JOINTS
 from quadmanip.sim.actuators import (
     ActuatorConfig,
     ActuatorLayer,
@@ -14,7 +15,6 @@ from quadmanip.sim.actuators import (
     hermite,
     torque_speed_clamp,
 )
-from quadmanip.sim.engine import ARM_JOINTS, GRIPPER_JOINTS, LEG_JOINTS
 
 pytestmark = pytest.mark.unit
 
