@@ -261,7 +261,9 @@ class PingPong:
             self.replies.get_nowait()
         return True
 
-    def run(self, msgs: Sequence[Message], label: str) -> tuple[list[float], int]:
+    def run(
+        self, msgs: Sequence[Message], label: str, report: bool = True
+    ) -> tuple[list[float], int]:
         """Round-trip times (s) for ``msgs`` sent one after another; returns (rtts, lost)."""
         rtts: list[float] = []
         lost = 0
@@ -278,7 +280,7 @@ class PingPong:
                 if stamp == msg.stamp:
                     rtts.append(t1 - t0)
                     break
-            if (k + 1) % step == 0:
+            if report and (k + 1) % step == 0:
                 progress(f"  {label}: {k + 1}/{len(msgs)}")
         return rtts, lost
 
