@@ -1,0 +1,316 @@
+"""In-process MuJoCo harness for the manipulation primitives (TEST AND BENCHMARK ONLY).
+
+This is scaffolding, not part of the service: it reads ground truth (object poses) to
+hand the primitives grasp poses, the way perception will later. It never moves anything
+except through physics:
+
+* the arm and the gripper are driven by the simulator's own actuator layer
+  (:class:`quadmanip.sim.actuators.ActuatorLayer`) from the primitives' trajectories;
+* the legs are held by the same actuator layer's PD at standing joint targets, as a
+  stand-in for the locomotion service. A body-pose request (moveCOM, crouch) is executed
+  by re-solving the leg joint targets with the feet kept where they stand (numeric
+  foot-position IK on the description), moved smoothly over ``body_move_time``, plus a
+  static gravity feed-forward. When locomotion's body-pose interface is available, the
+  integration tests use it instead.
+
+Objects come from the sim's catalogue (``quadmanip.sim.world.objects``); a scene is the
+robot on a floor with optional table slabs and deposit boxes.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+from quadmanip.common import robot_description as rd
+from quadmanip.services.manipulation.primitive import (
+    ArmCommand,
+    BodyPoseRequest,
+    Command,
+    GripperCmd,
+    Observation,
+    Primitive,
+)
+from quadmanip.sim.actuators import ActuatorConfig, ActuatorLayer
+from quadmanip.sim.world.objects import add_object, load_catalogue
+
+__all__ = ["Box", "PlacedObject", "SimHarness"]
+
+LEG_JOINTS = tuple(
+    f"{leg}_{j}" for leg in ("FL", "FR", "RL", "RR") for j in ("abad", "hip", "knee")
+)
+ARM_JOINTS = ("arm_j1", "arm_j2", "arm_j3", "arm_j4")
+GRIPPER_JOINTS = ("gripper_left", "gripper_right")
+FEET = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
+
+
+@dataclass(frozen=True)
+class Box:
+    """A static box (table top, tray wall, drawer body...) in world coordinates."""
+
+    name: str
+    center: tuple[float, float, float]
+    half_size: tuple[float, float, float]
+    rgba: tuple[float, float, float, float] = (0.55, 0.4, 0.25, 1.0)
+    friction: float = 0.8
+
+
+@dataclass(frozen=True)
+class PlacedObject:
+    """A catalogue object at a world pose (z of its bounding-box centre)."""
+
+    name: str
+    pos: tuple[float, float, float]
+    yaw: float = 0.0
+    quat: tuple[float, float, float, float] | None = None
+
+
+@dataclass
+class _BodyMotion:
+    start: np.ndarray
+    goal: np.ndarray
+    t0: float
+    duration: float
+
+
+@dataclass
+class HarnessLog:
+    """Per-tick samples the tests inspect (robot time, TCP, object heights...)."""
+
+    t: list[float] = field(default_factory=list)
+    q_arm: list[np.ndarray] = field(default_factory=list)
+
+
+class SimHarness:
+    """Robot + floor + boxes + objects in MuJoCo, stepped with the actuator layer."""
+
+    def __init__(
+        self,
+        objects: Sequence[PlacedObject] = (),
+        boxes: Sequence[Box] = (),
+        control_rate: float = 500.0,
+        body_move_time: float = 0.8,
+        leg_kp: float = 180.0,
+        leg_kd: float = 4.0,
+    ) -> None:
+        spec = rd.robot_spec()
+        spec.worldbody.add_geom(
+            name="floor",
+            type=mujoco.mjtGeom.mjGEOM_PLANE,
+            size=[0.0, 0.0, 0.05],
+            friction=[1.0, 0.005, 0.0001],
+            rgba=[0.6, 0.6, 0.6, 1.0],
+            group=0,
+        )
+        spec.worldbody.add_light(pos=[0.0, 0.0, 3.0], dir=[0.0, 0.0, -1.0], castshadow=False)
+        for b in boxes:
+            spec.worldbody.add_geom(
+                name=b.name,
+                type=mujoco.mjtGeom.mjGEOM_BOX,
+                size=list(b.half_size),
+                pos=list(b.center),
+                rgba=list(b.rgba),
+                friction=[b.friction, 0.005, 0.0001],
+                group=0,
+            )
+        cat = load_catalogue()
+        self.catalogue = cat
+        for o in objects:
+            quat = (
+                o.quat if o.quat is not None else (math.cos(o.yaw / 2), 0, 0, math.sin(o.yaw / 2))
+            )
+            add_object(spec.worldbody, o.name, cat.objects[o.name], o.pos, quat)
+        self.model = spec.compile()
+        self.data = mujoco.MjData(self.model)
+        m, d = self.model, self.data
+        home = rd.home_qpos()
+        d.qpos[: len(home)] = home
+        for o in objects:
+            j = m.joint(f"obj/{o.name}/free")
+            adr = j.qposadr[0]
+            quat = (
+                o.quat if o.quat is not None else (math.cos(o.yaw / 2), 0, 0, math.sin(o.yaw / 2))
+            )
+            d.qpos[adr : adr + 3] = o.pos
+            d.qpos[adr + 3 : adr + 7] = quat
+        mujoco.mj_forward(m, d)
+        self.act = ActuatorLayer(m, ActuatorConfig(), LEG_JOINTS, ARM_JOINTS, GRIPPER_JOINTS)
+        self.substeps = max(1, round(1.0 / (control_rate * m.opt.timestep)))
+        self.base_id = m.body("base").id
+        self.object_names = [o.name for o in objects]
+        # leg stand-in
+        self._kin = mujoco.MjData(m)
+        self._leg_q = d.qpos[self.act.legs.qpos].copy()
+        self._feet_world = np.array([d.site(f).xpos.copy() for f in FEET])
+        self._base_home = d.qpos[:3].copy()
+        self._base_quat = d.qpos[3:7].copy()
+        self.leg_kp = leg_kp
+        self.leg_kd = leg_kd
+        self.body_move_time = body_move_time
+        self._body_offset = np.zeros(3)
+        self._motion: _BodyMotion | None = None
+        self._tau_ff = self._gravity_ff(self._leg_q)
+        self._send_legs()
+        self.log = HarnessLog()
+
+    # ------------------------------------------------------------ ground truth
+    def object_pos(self, name: str) -> np.ndarray:
+        """GROUND TRUTH world position of an object's body origin (tests only)."""
+        return self.data.body(f"obj/{name}").xpos.copy()
+
+    def object_quat(self, name: str) -> np.ndarray:
+        """GROUND TRUTH world orientation (wxyz) of an object (tests only)."""
+        return self.data.body(f"obj/{name}").xquat.copy()
+
+    def base_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """GROUND TRUTH base position and rotation matrix (tests only)."""
+        return self.data.xpos[self.base_id].copy(), self.data.xmat[self.base_id].reshape(
+            3, 3
+        ).copy()
+
+    def world_to_base(self, p_world: np.ndarray) -> np.ndarray:
+        """Expresses a world point in the current base frame (what perception would report)."""
+        pos, rot = self.base_pose()
+        return rot.T @ (np.asarray(p_world, dtype=float) - pos)
+
+    def tcp_world(self) -> np.ndarray:
+        """GROUND TRUTH tool-centre position."""
+        return self.data.site("gripper_tcp").xpos.copy()
+
+    # -------------------------------------------------------------- robot side
+    def observation(self) -> Observation:
+        """Encoders and gripper state, as the sim's JointState carries them."""
+        d = self.data
+        return Observation(
+            t=float(d.time),
+            q_arm=d.qpos[self.act.arm.qpos].copy(),
+            dq_arm=d.qvel[self.act.arm.dof].copy(),
+            gripper_gap=self.act.gripper_gap(d),
+            gripper_effort=float(abs(self.act.tau[self.act.gripper.act].sum())),
+        )
+
+    def apply(self, cmds: Sequence[Command], kp: Sequence[float], kd: Sequence[float]) -> None:
+        """Routes primitive commands to the actuator layer and the leg stand-in."""
+        now = float(self.data.time)
+        for c in cmds:
+            if isinstance(c, ArmCommand):
+                ok = self.act.set_arm_trajectory(now, c.traj.t, c.traj.q, c.traj.dq, kp, kd)
+                if not ok:
+                    raise RuntimeError(
+                        f"actuator layer rejected a trajectory: {self.act.reject_reasons}"
+                    )
+            elif isinstance(c, GripperCmd):
+                self.act.set_gripper_command(now, c.gap, c.max_force)
+            elif isinstance(c, BodyPoseRequest):
+                self.request_body(c)
+
+    def request_body(self, req: BodyPoseRequest) -> None:
+        """Starts a smooth body move to the requested offsets (feet stay in place)."""
+        goal = np.array([req.x_offset, req.y_offset, req.z_offset])
+        self._motion = _BodyMotion(
+            self._body_offset.copy(), goal, float(self.data.time), self.body_move_time
+        )
+
+    def _leg_ik(self, offset: np.ndarray) -> np.ndarray:
+        """Leg joints that keep the feet at their standing spots with the base at home+offset."""
+        m, k = self.model, self._kin
+        k.qpos[:] = self.data.qpos
+        k.qpos[:3] = self._base_home + offset
+        k.qpos[3:7] = self._base_quat
+        k.qpos[self.act.legs.qpos] = self._leg_q
+        jac = np.zeros((3, m.nv))
+        for _ in range(20):
+            mujoco.mj_kinematics(m, k)
+            mujoco.mj_comPos(m, k)
+            err_max = 0.0
+            for i, f in enumerate(FEET):
+                sid = m.site(f).id
+                err = self._feet_world[i] - k.site_xpos[sid]
+                err_max = max(err_max, float(np.abs(err).max()))
+                mujoco.mj_jacSite(m, k, jac, None, sid)
+                cols = self.act.legs.dof[3 * i : 3 * i + 3]
+                j3 = jac[:, cols]
+                dq = np.linalg.solve(j3 + 1e-9 * np.eye(3), err)
+                k.qpos[self.act.legs.qpos[3 * i : 3 * i + 3]] += dq
+            if err_max < 1e-7:
+                break
+        return k.qpos[self.act.legs.qpos].copy()
+
+    def _gravity_ff(self, q_leg: np.ndarray) -> np.ndarray:
+        """Static leg torques that carry the robot's weight equally on four feet."""
+        m, k = self.model, self._kin
+        k.qpos[:] = self.data.qpos
+        k.qpos[self.act.legs.qpos] = q_leg
+        k.qvel[:] = 0.0
+        mujoco.mj_forward(m, k)
+        robot = np.flatnonzero(m.body_rootid == m.body_rootid[self.base_id])
+        mass = float(m.body_mass[robot].sum())
+        f = np.array([0.0, 0.0, mass * 9.81 / 4.0])
+        tau = np.zeros(12)
+        jac = np.zeros((3, m.nv))
+        for i, name in enumerate(FEET):
+            mujoco.mj_jacSite(m, k, jac, None, m.site(name).id)
+            cols = self.act.legs.dof[3 * i : 3 * i + 3]
+            tau[3 * i : 3 * i + 3] = -jac[:, cols].T @ f
+        return tau + k.qfrc_bias[self.act.legs.dof]
+
+    def _send_legs(self) -> None:
+        now = float(self.data.time)
+        self.act.set_leg_command(
+            now,
+            self._leg_q,
+            np.zeros(12),
+            np.full(12, self.leg_kp),
+            np.full(12, self.leg_kd),
+            self._tau_ff,
+        )
+
+    def _update_body(self) -> None:
+        mo = self._motion
+        if mo is None:
+            return
+        s = min(1.0, (float(self.data.time) - mo.t0) / mo.duration)
+        s = s * s * (3 - 2 * s)
+        self._body_offset = mo.start + s * (mo.goal - mo.start)
+        self._leg_q = self._leg_ik(self._body_offset)
+        self._tau_ff = self._gravity_ff(self._leg_q)
+        if s >= 1.0:
+            self._motion = None
+
+    def step(self) -> None:
+        """One control tick: leg stand-in update, then ``substeps`` physics steps."""
+        self._update_body()
+        self._send_legs()
+        for _ in range(self.substeps):
+            self.act.apply(self.data)
+            mujoco.mj_step(self.model, self.data)
+
+    def settle(self, seconds: float) -> None:
+        """Lets physics run (robot standing, objects resting) for ``seconds``."""
+        n = int(round(seconds / (self.substeps * self.model.opt.timestep)))
+        for _ in range(n):
+            self.step()
+
+    def run(
+        self,
+        prim: Primitive,
+        kp: Sequence[float],
+        kd: Sequence[float],
+        timeout: float = 60.0,
+        every_tick: object | None = None,
+    ) -> Primitive:
+        """Runs a primitive to completion (or ``timeout`` s of sim time)."""
+        t_end = float(self.data.time) + timeout
+        while not prim.done and float(self.data.time) < t_end:
+            cmds = prim.step(self.observation())
+            self.apply(cmds, kp, kd)
+            self.step()
+            if callable(every_tick):
+                every_tick(self)
+        if not prim.done:
+            self.apply(prim.cancel(self.observation()), kp, kd)
+            prim.reason = "timeout"
+        return prim
