@@ -93,6 +93,24 @@ def rot_z(yaw: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
+def desired_forces(foot_rel: np.ndarray, contact: np.ndarray, mass: float) -> np.ndarray:
+    """Vertical forces (N, 4, 3) near the equal split m·g/n that carry the weight with no
+    roll/pitch moment about the COM (least squares when two feet cannot balance it)."""
+    n = contact.shape[0]
+    out = np.zeros((n, 4, 3))
+    w = mass * GRAVITY
+    for k in range(n):
+        idx = np.flatnonzero(contact[k])
+        if idx.size == 0:
+            continue
+        f0 = np.full(idx.size, w / idx.size)
+        a = np.vstack([np.ones(idx.size), foot_rel[k, idx, 1], foot_rel[k, idx, 0]])
+        b = np.array([w, 0.0, 0.0])
+        fz = f0 + np.linalg.pinv(a) @ (b - a @ f0)
+        out[k, idx, 2] = np.maximum(fz, 0.0)
+    return out
+
+
 class ConvexMpc:
     """Condensed convex MPC for the foot forces, solved with PIQP every call."""
 
@@ -207,11 +225,11 @@ class ConvexMpc:
         lb = b * self._l_diag[:, None]
         hess = b.T @ lb
         hess[np.diag_indices_from(hess)] += self._r_u
-        # Paper Sec. 6.2.2: the desired GRF is the weight shared by the feet in stance, so R_u
-        # regularises towards it (not towards zero, which would bias the height down).
-        n_st = np.maximum(contact.sum(axis=1), 1)
-        u_des = np.zeros((n, 4, 3))
-        u_des[:, :, 2] = (mass * GRAVITY / n_st)[:, None] * contact
+        # Paper Sec. 6.2.2: R_u regularises towards a desired GRF that carries the weight
+        # (the paper: half of it per foot in two-feet phases, a quarter in four-feet phases).
+        # An equal split only balances when the COM is at the feet's centre, so we use the
+        # closest split that also has no moment about the COM (see desired_forces()).
+        u_des = desired_forces(foot_rel, contact, mass)
         grad = lb.T @ (aqp @ x0a - xr) - self._r_u * u_des.reshape(-1)[cols]
         nf = cols.size // 3
         g_mat = np.kron(np.eye(nf), self._cone)

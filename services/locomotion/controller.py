@@ -1,0 +1,480 @@
+"""The locomotion controller: modes, estimator, gait, MPC and legs, with no transport.
+
+`LocomotionController.step()` is called at the leg-command rate (500 Hz) with what a real
+robot measures (joint encoders and the IMU) and returns the 12 per-joint commands
+(q_des, dq_des, kp, kd, tau_ff) for the actuator layer. Every `mpc_every` ticks
+(T_pred = 0.03 s) it solves the convex MPC. The node (`node.py`) wires it to Zenoh; tests and
+the benchmark drive it in-process with the simulator as the plant.
+
+Modes: ``damp`` (passive damping), ``sit`` (fold the legs), ``stand`` (stand up if needed,
+then balance on four feet with the MPC, following body pose commands) and ``walk`` (trot
+with body velocity commands). A walk command that stops arriving for `cmd_timeout` brings
+the robot to a stop and back to four-feet standing.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from quadmanip.services.locomotion.com_reference import ComReference, FsmParams
+from quadmanip.services.locomotion.convex_mpc import ConvexMpc, MpcParams, MpcWeights
+from quadmanip.services.locomotion.gait import GaitParams, TrotGait
+from quadmanip.services.locomotion.leg_kinematics import LegKinematics
+from quadmanip.services.locomotion.state_estimator import (
+    EstimatorParams,
+    StateEstimator,
+    quat_to_rot,
+    rot_to_rpy,
+)
+from quadmanip.services.locomotion.swing_leg import SwingParams, swing_profile, touchdown_target
+
+MODES = ("damp", "sit", "stand", "walk")
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Accepted command ranges."""
+
+    vx: float = 0.6
+    vy: float = 0.4
+    wz: float = 1.2
+    z_crouch: float = 0.12  # how far the body may go down (m)
+    z_raise: float = 0.03  # how far up (m)
+    shift: float = 0.06  # COM shift in x and y (m)
+    roll: float = 0.3
+    pitch: float = 0.3
+    yaw: float = 0.3
+
+
+@dataclass(frozen=True)
+class LegGains:
+    """Joint-space gains for standing up / sitting and damping, and stance damping."""
+
+    kp_posture: float = 60.0
+    kd_posture: float = 2.0
+    kd_damp: float = 2.0
+    kd_stance: float = 0.5
+    kd_swing: float = 0.5
+
+
+@dataclass(frozen=True)
+class LocomotionConfig:
+    """Everything the controller needs (configs/locomotion.toml)."""
+
+    control_dt: float = 0.002
+    stand_height: float = 0.30  # base height when standing (m)
+    stand_up_time: float = 1.2
+    sit_time: float = 1.2
+    cmd_timeout: float = 0.2
+    held_mass: float = 0.0
+    weight_set: str = "tuned"
+    weights: dict[str, MpcWeights] = field(
+        default_factory=lambda: {"paper": MpcWeights(), "tuned": MpcWeights()}
+    )
+    sit_pose: tuple[float, float, float] = (0.0, 1.2, -2.6)  # abad, hip, knee
+    mpc: MpcParams = field(default_factory=MpcParams)
+    gait: GaitParams = field(default_factory=GaitParams)
+    swing: SwingParams = field(default_factory=SwingParams)
+    estimator: EstimatorParams = field(default_factory=EstimatorParams)
+    fsm: FsmParams = field(default_factory=FsmParams)
+    limits: Limits = field(default_factory=Limits)
+    gains: LegGains = field(default_factory=LegGains)
+
+
+def load_locomotion_config(name: str = "locomotion", **overrides: object) -> LocomotionConfig:
+    """Load configs/<name>.toml (overrides as dotted keys, e.g. weight_set="paper")."""
+    from quadmanip.common.config import load_config
+
+    return load_config(LocomotionConfig, name, overrides or None)
+
+
+@dataclass
+class LegOutput:
+    """Per-joint command for the 12 leg joints."""
+
+    q_des: np.ndarray
+    dq_des: np.ndarray
+    kp: np.ndarray
+    kd: np.ndarray
+    tau_ff: np.ndarray
+
+
+@dataclass
+class DebugInfo:
+    """What the controller did on the last tick (for the debug stream and benchmarks)."""
+
+    mode: str = "damp"
+    gait_phase: np.ndarray = field(default_factory=lambda: np.zeros(4))
+    contact: np.ndarray = field(default_factory=lambda: np.ones(4, dtype=bool))
+    foot_forces: np.ndarray = field(default_factory=lambda: np.zeros((4, 3)))
+    predicted: np.ndarray = field(default_factory=lambda: np.zeros((0, 12)))
+    mpc_step_s: float = 0.0
+    mpc_solver_s: float = 0.0
+    mpc_solved: bool = False
+    mpc_status: str = ""
+
+
+class CommandError(ValueError):
+    """A command that is rejected (non-finite, out of range, unknown mode)."""
+
+
+class LocomotionController:
+    """Modes + estimator + gait + MPC + swing legs (see module doc)."""
+
+    def __init__(self, config: LocomotionConfig, mjcf: str | None = None) -> None:
+        self.cfg = config
+        if config.weight_set not in config.weights:
+            raise ValueError(f"unknown weight set {config.weight_set!r}")
+        mpc_params = replace(config.mpc, weights=config.weights[config.weight_set])
+        self.mpc = ConvexMpc(mpc_params)
+        self.mpc_every = max(1, round(mpc_params.dt / config.control_dt))
+        self.gait = TrotGait(config.gait)
+        self.kin = LegKinematics(mjcf)
+        self.est = StateEstimator(config.estimator)
+        self.ref = ComReference(config.fsm)
+        self.mode = "damp"
+        self.phase = "damp"  # internal: damp, sit, standing_up, balance, walk, stopping
+        self.held_mass = float(config.held_mass)
+        self.debug = DebugInfo()
+        # Nominal stance: feet under the hips, pushed out by the abduction offset.
+        self.nominal_feet = self.kin.straight_leg_feet.copy()
+        self.nominal_feet[:, 2] = -config.stand_height + config.estimator.foot_radius
+        self.q_stand = self._leg_ik(self.nominal_feet)
+        self.q_sit = np.tile(np.asarray(config.sit_pose, dtype=float), 4)
+        # Commands.
+        self.cmd_vel = np.zeros(3)
+        self.cmd_vel_time = -math.inf
+        self.body_pose = np.zeros(6)  # z, x, y, roll, pitch, yaw offsets
+        # Internal state.
+        self._t = 0.0
+        self._tick = 0
+        self._interp_from: np.ndarray | None = None
+        self._interp_t0 = 0.0
+        self._gait_t0 = 0.0
+        self._forces_world = np.zeros((4, 3))
+        self._contact_prev = np.ones(4, dtype=bool)
+        self._liftoff = np.zeros((4, 3))
+        self._td_target = np.zeros((4, 3))
+        self._stand_yaw = 0.0
+        self._stand_xy = np.zeros(2)
+        self._stop_requested = False
+        self._inertia = self.kin.body_inertia(self.held_mass)
+        self.last_rpy = np.zeros(3)
+
+    # ------------------------------------------------------------------ helpers
+    def _leg_ik(self, feet_body: np.ndarray, iters: int = 30) -> np.ndarray:
+        """Joint angles that put the feet at feet_body (base frame), by damped Newton steps."""
+        q = np.zeros(16)
+        q[:12] = np.tile([0.0, 0.7, -1.4], 4)
+        for _ in range(iters):
+            self.kin.update(q)
+            err = feet_body - self.kin.foot_pos
+            if np.max(np.abs(err)) < 1e-6:
+                break
+            for i in range(4):
+                j = self.kin.foot_jac[i]
+                step = np.linalg.solve(j.T @ j + 1e-6 * np.eye(3), j.T @ err[i])
+                q[3 * i : 3 * i + 3] += step
+        return q[:12].copy()
+
+    # ------------------------------------------------------------------ commands
+    def set_mode(self, mode: str) -> None:
+        """Request a mode: damp, sit, stand or walk."""
+        if mode not in MODES:
+            raise CommandError(f"unknown mode {mode!r}; expected one of {MODES}")
+        if mode == self.mode:
+            return
+        if mode == "walk" and self.phase not in ("balance", "walk", "stopping"):
+            if self.phase == "standing_up":
+                self.mode = "walk"  # will start walking once standing
+                return
+            raise CommandError("walk needs the robot standing first (mode 'stand')")
+        self.mode = mode
+        if mode == "damp":
+            self.phase = "damp"
+        elif mode == "sit":
+            self._start_interp("sit")
+        elif mode == "stand":
+            if self.phase in ("walk", "stopping"):
+                self._stop_requested = True
+                self.phase = "stopping"
+            elif self.phase not in ("balance",):
+                self._start_interp("standing_up")
+
+    def set_velocity(self, vx: float, vy: float, wz: float, now: float) -> None:
+        """Body velocity command (base frame); starts walking from standing."""
+        v = np.array([vx, vy, wz], dtype=float)
+        if not np.all(np.isfinite(v)):
+            raise CommandError(f"non-finite velocity command {v.tolist()}")
+        lim = self.cfg.limits
+        bound = np.array([lim.vx, lim.vy, lim.wz])
+        if np.any(np.abs(v) > bound + 1e-9):
+            raise CommandError(f"velocity {v.tolist()} outside limits ±{bound.tolist()}")
+        if self.phase not in ("balance", "walk", "stopping") and self.mode != "walk":
+            raise CommandError(f"velocity commands need mode stand or walk (now {self.mode})")
+        self.cmd_vel = v
+        self.cmd_vel_time = float(now)
+        if self.phase in ("balance", "stopping") and np.any(np.abs(v) > 1e-6):
+            self._start_walk()
+        self.mode = "walk"
+
+    def set_body_pose(
+        self, z: float, x: float, y: float, roll: float, pitch: float, yaw: float
+    ) -> None:
+        """Body pose offsets from the nominal stand (used while standing)."""
+        p = np.array([z, x, y, roll, pitch, yaw], dtype=float)
+        if not np.all(np.isfinite(p)):
+            raise CommandError(f"non-finite body pose command {p.tolist()}")
+        lim = self.cfg.limits
+        checks = [
+            (-lim.z_crouch <= z <= lim.z_raise, "z_offset"),
+            (abs(x) <= lim.shift, "x_offset"),
+            (abs(y) <= lim.shift, "y_offset"),
+            (abs(roll) <= lim.roll, "roll"),
+            (abs(pitch) <= lim.pitch, "pitch"),
+            (abs(yaw) <= lim.yaw, "yaw"),
+        ]
+        for ok, name in checks:
+            if not ok:
+                raise CommandError(f"body pose {name} out of range: {p.tolist()}")
+        self.body_pose = p
+
+    def set_held_mass(self, mass: float) -> None:
+        """Mass of the object in the gripper (kg), included in the MPC's model."""
+        if not (math.isfinite(mass) and 0.0 <= mass <= 2.0):
+            raise CommandError(f"held mass {mass} out of range [0, 2] kg")
+        self.held_mass = float(mass)
+
+    # ------------------------------------------------------------------ transitions
+    def _start_interp(self, phase: str) -> None:
+        self.phase = phase
+        self._interp_from = None  # taken from the measured pose at the next tick
+        self._interp_t0 = self._t
+
+    def _start_walk(self) -> None:
+        self.phase = "walk"
+        self._gait_t0 = self._t
+        self._stop_requested = False
+
+    def _enter_balance(self, quat: np.ndarray) -> None:
+        self.phase = "balance"
+        self.est.reset(quat, self.kin.foot_pos)
+        rpy = rot_to_rpy(quat_to_rot(quat))
+        self.ref.reset(self.est.position, float(rpy[2]))
+        self._stand_yaw = float(rpy[2])
+        self._stand_xy = np.mean(self.est.x[6:18].reshape(4, 3)[:, :2], axis=0)
+        self.body_pose = np.zeros(6)
+        if self.mode == "walk":
+            self.mode = "stand"
+
+    # ------------------------------------------------------------------ main loop
+    def step(
+        self,
+        t: float,
+        q16: np.ndarray,
+        dq16: np.ndarray,
+        quat: np.ndarray,
+        gyro: np.ndarray,
+        accel: np.ndarray,
+    ) -> LegOutput:
+        """One control tick: measurements in, per-joint leg command out."""
+        self._t = float(t)
+        self._tick += 1
+        q16 = np.asarray(q16, dtype=float)
+        dq16 = np.asarray(dq16, dtype=float)
+        self.kin.update(q16)
+        self.debug.mode = self.mode
+        if self.phase == "damp":
+            return self._damp(q16)
+        if self.phase in ("sit", "standing_up"):
+            out = self._posture(q16)
+            if self.phase == "standing_up" and self._t - self._interp_t0 >= self.cfg.stand_up_time:
+                self._enter_balance(np.asarray(quat, dtype=float))
+            return out
+        return self._mpc_tick(q16, dq16, np.asarray(quat, float), gyro, accel)
+
+    def _damp(self, q16: np.ndarray) -> LegOutput:
+        z = np.zeros(12)
+        return LegOutput(q16[:12].copy(), z, z.copy(), np.full(12, self.cfg.gains.kd_damp), z.copy())
+
+    def _posture(self, q16: np.ndarray) -> LegOutput:
+        """Joint-space interpolation to the stand or sit pose (smoothstep in time)."""
+        if self._interp_from is None:
+            self._interp_from = q16[:12].copy()
+        dur = self.cfg.stand_up_time if self.phase == "standing_up" else self.cfg.sit_time
+        goal = self.q_stand if self.phase == "standing_up" else self.q_sit
+        s = float(np.clip((self._t - self._interp_t0) / dur, 0.0, 1.0))
+        a = s * s * (3.0 - 2.0 * s)
+        da = 6.0 * s * (1.0 - s) / dur if s < 1.0 else 0.0
+        q_des = self._interp_from + (goal - self._interp_from) * a
+        dq_des = (goal - self._interp_from) * da
+        g = self.cfg.gains
+        return LegOutput(
+            q_des, dq_des, np.full(12, g.kp_posture), np.full(12, g.kd_posture), np.zeros(12)
+        )
+
+    def _mpc_tick(
+        self,
+        q16: np.ndarray,
+        dq16: np.ndarray,
+        quat: np.ndarray,
+        gyro: np.ndarray,
+        accel: np.ndarray,
+    ) -> LegOutput:
+        cfg = self.cfg
+        dt = cfg.control_dt
+        walking = self.phase in ("walk", "stopping")
+        t_g = self._t - self._gait_t0
+        if walking:
+            contact, progress, gphase = self.gait.phase_info(t_g)
+        else:
+            contact, progress, gphase = np.ones(4, dtype=bool), np.full(4, -1.0), 1
+        # Velocity command timeout → stop.
+        cmd = self.cmd_vel.copy()
+        if walking and self._t - self.cmd_vel_time > cfg.cmd_timeout:
+            cmd[:] = 0.0
+            self._stop_requested = True
+        if walking and np.all(np.abs(self.cmd_vel) < 1e-6):
+            self._stop_requested = True
+        # Estimator.
+        foot_vel = self.kin.foot_velocities(dq16[:12])
+        self.est.update(dt, quat, gyro, accel, self.kin.foot_pos, foot_vel, contact.astype(float))
+        r = self.est.R
+        rpy = rot_to_rpy(r)
+        self.last_rpy = rpy
+        pos = self.est.position
+        vel = self.est.velocity
+        omega_w = r @ self.est.omega_body
+        # Stop: once slow, in a four-feet phase.
+        if walking and self._stop_requested:
+            slow = np.linalg.norm(vel[:2]) < 0.15 and abs(omega_w[2]) < 0.3
+            if slow and bool(np.all(contact)):
+                self.phase = "balance"
+                self.mode = "stand"
+                self._stop_requested = False
+                self.cmd_vel = np.zeros(3)
+                self._stand_yaw = float(rpy[2])
+                self.ref.reset(pos, float(rpy[2]))
+                self._stand_xy = np.mean(self.est.x[6:18].reshape(4, 3)[:, :2], axis=0)
+                walking = False
+                contact, progress = np.ones(4, dtype=bool), np.full(4, -1.0)
+        # Reference target (eqs. 10–12).
+        height = cfg.stand_height + (self.body_pose[0] if not walking else 0.0)
+        if walking:
+            self.ref.advance(cmd[:2], cmd[2], height, dt, pos, float(rpy[2]))
+            rp_des = np.zeros(2)
+        else:
+            # Standing: COM shift/rotation relative to the feet's centre.
+            feet_xy = np.mean(self.est.x[6:18].reshape(4, 3)[:, :2], axis=0)
+            yaw0 = self._stand_yaw
+            c, s = math.cos(yaw0), math.sin(yaw0)
+            off = np.array([c * self.body_pose[1] - s * self.body_pose[2],
+                            s * self.body_pose[1] + c * self.body_pose[2]])  # fmt: skip
+            self.ref.p_target = np.array([feet_xy[0] + off[0], feet_xy[1] + off[1], height])
+            yt = yaw0 + self.body_pose[5]
+            self.ref.q_target = np.array([math.cos(yt / 2), 0.0, 0.0, math.sin(yt / 2)])
+            self.ref.v_target_world = np.zeros(3)
+            self.ref.yaw_rate_target = 0.0
+            rp_des = self.body_pose[3:5]
+        # Feet in the world (odom) frame.
+        feet_w = (r @ self.kin.foot_pos.T).T + pos
+        # Swing bookkeeping: lift-off points and touchdown targets.
+        lifted = self._contact_prev & ~contact
+        self._liftoff[lifted] = feet_w[lifted]
+        self._contact_prev = contact.copy()
+        # MPC every mpc_every ticks.
+        if self._tick % self.mpc_every == 0 or not self.debug.mpc_solved:
+            self._run_mpc(rpy, pos, omega_w, vel, rp_des, feet_w, walking, t_g, cmd)
+        # Swing targets.
+        v_cmd_w = r[:, :2] @ cmd[:2] if walking else np.zeros(2)
+        v_cmd_w3 = np.array([v_cmd_w[0], v_cmd_w[1], 0.0])
+        hips_w = (r @ self.nominal_feet.T).T + pos
+        hip_off_w = (r @ self.nominal_feet.T).T
+        t_left = np.where(progress >= 0, (1.0 - progress) * cfg.gait.t_swing, 0.0)
+        self._td_target = touchdown_target(
+            hips_w, vel, v_cmd_w3, cmd[2] if walking else 0.0, hip_off_w,
+            self.gait.stance_duration(), t_left, cfg.swing, cfg.estimator.foot_radius,
+        )  # fmt: skip
+        # Leg torques.
+        g = cfg.gains
+        tau = np.zeros(12)
+        kd = np.zeros(12)
+        q_des = q16[:12].copy()
+        dq_des = np.zeros(12)
+        f_body = (r.T @ self._forces_world.T).T
+        tau_st = self.kin.leg_torques(f_body)
+        kp_c = np.asarray(cfg.swing.kp_cartesian)
+        kd_c = np.asarray(cfg.swing.kd_cartesian)
+        w_b = self.est.omega_body
+        for i in range(4):
+            sl = slice(3 * i, 3 * i + 3)
+            if contact[i]:
+                tau[sl] = tau_st[sl]
+                kd[sl] = g.kd_stance
+                # Stance feet move with −(v + ω×r) relative to the base: damp around that.
+                v_rel_b = -(r.T @ vel) - np.cross(w_b, self.kin.foot_pos[i])
+                dq_des[sl] = np.linalg.lstsq(self.kin.foot_jac[i], v_rel_b, rcond=None)[0]
+            else:
+                p_des_w, v_des_w = swing_profile(
+                    self._liftoff[i], self._td_target[i], progress[i], cfg.gait.t_swing,
+                    cfg.gait.foot_height,
+                )  # fmt: skip
+                p_des_b = r.T @ (p_des_w - pos)
+                v_des_b = r.T @ (v_des_w - vel) - np.cross(w_b, p_des_b)
+                v_foot_b = self.kin.foot_velocities(dq16[:12])[i]
+                f = kp_c * (p_des_b - self.kin.foot_pos[i]) + kd_c * (v_des_b - v_foot_b)
+                tau[sl] = self.kin.foot_jac[i].T @ f
+                kd[sl] = g.kd_swing
+                dq_des[sl] = np.linalg.lstsq(self.kin.foot_jac[i], v_des_b, rcond=None)[0]
+        self.debug.gait_phase = np.where(progress >= 0, progress, 0.0)
+        self.debug.contact = contact.copy()
+        self.debug.foot_forces = self._forces_world.copy()
+        return LegOutput(q_des, dq_des, np.zeros(12), kd, tau)
+
+    def _run_mpc(
+        self,
+        rpy: np.ndarray,
+        pos: np.ndarray,
+        omega_w: np.ndarray,
+        vel: np.ndarray,
+        rp_des: np.ndarray,
+        feet_w: np.ndarray,
+        walking: bool,
+        t_g: float,
+        cmd: np.ndarray,
+    ) -> None:
+        """Build the MPC problem around the COM and solve it (stores the first forces)."""
+        t0 = time.perf_counter()
+        p = self.mpc.params
+        n = p.horizon
+        self._inertia = self.kin.body_inertia(self.held_mass)
+        bi = self._inertia
+        r = self.est.R
+        com_off_w = r @ bi.com
+        com = pos + com_off_w
+        com_vel = vel + np.cross(omega_w, com_off_w)
+        x_ref = self.ref.plan(rpy, pos, omega_w, vel, rp_des, n, p.dt)
+        x_ref[:, 3:6] += com_off_w  # base reference → COM reference
+        x0 = np.concatenate([rpy, com, omega_w, com_vel])
+        if walking:
+            contacts = self.gait.schedule(t_g, n, p.dt)
+        else:
+            contacts = np.ones((n, 4), dtype=bool)
+        # Foot positions over the horizon: stance feet stay; a swinging foot lands on its target.
+        feet = np.broadcast_to(feet_w, (n, 4, 3)).copy()
+        for i in range(4):
+            if not contacts[0, i] or not self.debug.contact[i]:
+                feet[:, i, :] = self._td_target[i]
+        foot_rel = feet - x_ref[:, None, 3:6]
+        sol = self.mpc.solve(x0, x_ref, foot_rel, contacts, bi.mass, bi.inertia)
+        self.debug.mpc_solved = sol.status == "solved"
+        self.debug.mpc_status = sol.status
+        if sol.status == "solved" or sol.status == "no_contact":
+            self._forces_world = sol.first.copy()
+        self.debug.predicted = sol.predicted
+        self.debug.mpc_solver_s = sol.solver_time_s
+        self.debug.mpc_step_s = time.perf_counter() - t0
