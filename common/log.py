@@ -94,20 +94,22 @@ class StructuredLogger(logging.LoggerAdapter):
         kwargs["extra"] = extra
         return msg, kwargs
 
-    def throttled(self, key: str, period_s: float, level: int, msg: str, **fields: Any) -> bool:
-        """Log at most once per ``period_s`` for ``key``; says how many were suppressed.
+    def throttled(
+        self, throttle_key: str, period_s: float, level: int, msg: str, /, **fields: Any
+    ) -> bool:
+        """Log at most once per ``period_s`` for ``throttle_key``; counts the suppressed.
 
         Returns True when the record was emitted. Used for per-message errors (a flood of
         malformed packets must not flood the log nor slow the receiving thread).
         """
         now = time.monotonic()
         with self._lock:
-            last = self._last.get(key)
+            last = self._last.get(throttle_key)
             if last is not None and now - last < period_s:
-                self._suppressed[key] = self._suppressed.get(key, 0) + 1
+                self._suppressed[throttle_key] = self._suppressed.get(throttle_key, 0) + 1
                 return False
-            self._last[key] = now
-            suppressed = self._suppressed.pop(key, 0)
+            self._last[throttle_key] = now
+            suppressed = self._suppressed.pop(throttle_key, 0)
         if suppressed:
             fields["suppressed"] = suppressed
         self.log(level, msg, **fields)
