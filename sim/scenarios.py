@@ -1,0 +1,287 @@
+"""Scenarios: which objects lie where when a trial starts (paper Section 7.3, Table 4).
+
+A seed gives 10 of the 18 catalogue objects at random, collision-free, resting poses on the
+floor areas and spawn tables of the house, drawers closed. The five trials of Table 4 are the
+named scenarios ``paper-1`` … ``paper-5`` with exactly the paper's object lists (their poses
+are seeded by the trial number). Same seed, same world: everything is drawn from one
+``numpy.random.Generator`` in a fixed order.
+
+Collision-free means: no object touches or penetrates furniture, walls, another object or
+the robot (checked with ``mj_forward`` contacts on the built world), and none lies in the
+robot's start footprint. Objects are placed resting: upright in their catalogue pose, turned
+about z, their lowest point 1 mm above the surface.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from quadmanip.sim.world.house import HouseConfig, Surface, load_house
+from quadmanip.sim.world.objects import Catalogue, load_catalogue
+
+__all__ = [
+    "PAPER_TRIALS",
+    "Placement",
+    "Scenario",
+    "generate",
+    "get_scenario",
+    "object_contacts",
+    "paper_scenario",
+    "scenario_names",
+]
+
+#: Table 4 of the paper, as printed ("driver" = screwdriver, "cracker" = cracker box, ...).
+PAPER_TRIALS: dict[int, tuple[str, ...]] = {
+    1: (
+        "Rubik's cube",
+        "clamp",
+        "marker",
+        "cracker",
+        "spoon",
+        "Lego",
+        "coffee can",
+        "baseball",
+        "bowl",
+        "cup",
+    ),
+    2: (
+        "tennis ball",
+        "bowl",
+        "driver",
+        "padlock",
+        "spoon",
+        "sugar",
+        "tomato soup",
+        "toy gun",
+        "mug",
+        "brick",
+    ),
+    3: (
+        "tennis ball",
+        "mug",
+        "driver",
+        "toy gun",
+        "padlock",
+        "coffee can",
+        "Rubik's cube",
+        "tomato soup",
+        "bowl",
+        "brick",
+    ),
+    4: (
+        "tennis ball",
+        "bowl",
+        "padlock",
+        "Lego",
+        "marker",
+        "cracker",
+        "brick",
+        "mug",
+        "tomato soup",
+        "Rubik's cube",
+    ),
+    5: (
+        "marker",
+        "mug",
+        "tomato soup",
+        "Rubik's cube",
+        "clamp",
+        "driver",
+        "cup",
+        "bowl",
+        "coffee can",
+        "baseball",
+    ),
+}
+
+N_OBJECTS = 10
+TABLE_PROBABILITY = 0.4  # share of objects put on tables (Figure 18: floor and table)
+CLEARANCE = 0.04  # free space between objects' footprint circles (m), room for the gripper
+TABLE_EDGE = 0.03  # keep objects this far inside a table's edge (m)
+DROP_GAP = 0.001  # lowest point above the surface at placement (m)
+
+
+@dataclass(frozen=True)
+class Placement:
+    """One object's initial pose: the surface it rests on and its world pose (quat wxyz)."""
+
+    name: str
+    surface: str
+    position: tuple[float, float, float]
+    quat: tuple[float, float, float, float]
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A trial's initial world: name, seed and the placed objects."""
+
+    name: str
+    seed: int
+    objects: tuple[Placement, ...]
+
+    @property
+    def object_names(self) -> tuple[str, ...]:
+        """Catalogue names of the scenario's objects."""
+        return tuple(p.name for p in self.objects)
+
+
+def _yaw_quat(yaw: float) -> tuple[float, float, float, float]:
+    return (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))
+
+
+def _in_rect(x: float, y: float, lo: tuple[float, float], hi: tuple[float, float]) -> bool:
+    return lo[0] <= x <= hi[0] and lo[1] <= y <= hi[1]
+
+
+class _Sampler:
+    """Draws resting, spaced poses on the house's surfaces from one random generator."""
+
+    def __init__(
+        self,
+        rng: np.random.Generator,
+        house: HouseConfig,
+        catalogue: Catalogue,
+        surfaces: tuple[Surface, ...],
+    ) -> None:
+        self.rng, self.house, self.catalogue = rng, house, catalogue
+        self.tables = [s for s in surfaces if s.kind == "table"]
+        self.floors = [s for s in surfaces if s.kind == "floor"]
+        areas = np.array([(s.max[0] - s.min[0]) * (s.max[1] - s.min[1]) for s in self.floors])
+        self.floor_weights = areas / areas.sum()
+        rs = house.robot_start
+        self.robot_lo = (rs.position[0] - rs.footprint[0] / 2, rs.position[1] - rs.footprint[1] / 2)
+        self.robot_hi = (rs.position[0] + rs.footprint[0] / 2, rs.position[1] + rs.footprint[1] / 2)
+
+    def _free(self, x: float, y: float, r: float, placed: list[tuple[Placement, float]]) -> bool:
+        lo = (self.robot_lo[0] - r, self.robot_lo[1] - r)
+        hi = (self.robot_hi[0] + r, self.robot_hi[1] + r)
+        if _in_rect(x, y, lo, hi):
+            return False
+        for p, r_other in placed:
+            if math.hypot(x - p.position[0], y - p.position[1]) < r + r_other + CLEARANCE:
+                return False
+        return True
+
+    def place(self, name: str, placed: list[tuple[Placement, float]]) -> Placement:
+        obj = self.catalogue.objects[name]
+        r = obj.footprint_radius
+        for _ in range(500):
+            on_table = self.rng.random() < TABLE_PROBABILITY
+            if on_table:
+                surf = self.tables[int(self.rng.integers(len(self.tables)))]
+                margin = r + TABLE_EDGE
+            else:
+                surf = self.floors[int(self.rng.choice(len(self.floors), p=self.floor_weights))]
+                margin = r
+            u, v = self.rng.random(2)
+            yaw = float(self.rng.uniform(-math.pi, math.pi))
+            lo_x, hi_x = surf.min[0] + margin, surf.max[0] - margin
+            lo_y, hi_y = surf.min[1] + margin, surf.max[1] - margin
+            if lo_x > hi_x or lo_y > hi_y:
+                continue
+            x, y = lo_x + u * (hi_x - lo_x), lo_y + v * (hi_y - lo_y)
+            if not self._free(x, y, r, placed):
+                continue
+            z = surf.z + obj.size[2] / 2 + DROP_GAP
+            return Placement(name, surf.name, (float(x), float(y), float(z)), _yaw_quat(yaw))
+        raise RuntimeError(f"no free place for {name!r}")
+
+
+def object_contacts(model: mujoco.MjModel, data: mujoco.MjData) -> list[tuple[str, str, float]]:
+    """Contacts that involve a scenario object: (body1, body2, distance); after
+    ``mj_forward`` on a freshly placed world this list must be empty."""
+    out = []
+    for i in range(data.ncon):
+        c = data.contact[i]
+        b1, b2 = model.geom_bodyid[c.geom1], model.geom_bodyid[c.geom2]
+        n1, n2 = model.body(b1).name, model.body(b2).name
+        if n1.startswith("obj/") or n2.startswith("obj/"):
+            out.append((n1, n2, float(c.dist)))
+    return out
+
+
+def _scenario(
+    name: str, seed: int, objects: list[str], house: HouseConfig, catalogue: Catalogue, verify: bool
+) -> Scenario:
+    from quadmanip.sim.world.builder import build_world
+    from quadmanip.sim.world.house import build_house
+
+    surfaces = build_house(mujoco.MjSpec(), house).surfaces
+    rng = np.random.default_rng(seed)
+    sampler = _Sampler(rng, house, catalogue, surfaces)
+    placed: list[tuple[Placement, float]] = []
+    for obj in objects:
+        placed.append((sampler.place(obj, placed), catalogue.objects[obj].footprint_radius))
+    scenario = Scenario(name, seed, tuple(p for p, _ in placed))
+    if not verify:
+        return scenario
+    for _ in range(10):
+        world = build_world(scenario, robot=True, house=house, catalogue=catalogue)
+        data = world.initial_data()
+        bad = {b.removeprefix("obj/") for c in object_contacts(world.model, data) for b in c[:2]}
+        bad &= set(objects)
+        if not bad:
+            return scenario
+        keep = [(p, r) for p, r in placed if p.name not in bad]
+        for p, _ in placed:
+            if p.name in bad:
+                keep.append(
+                    (sampler.place(p.name, keep), catalogue.objects[p.name].footprint_radius)
+                )
+        order = {n: i for i, n in enumerate(objects)}
+        placed = sorted(keep, key=lambda pr: order[pr[0].name])
+        scenario = Scenario(name, seed, tuple(p for p, _ in placed))
+    raise RuntimeError(f"scenario {name!r}: could not place objects without contact")
+
+
+def generate(
+    seed: int,
+    *,
+    verify: bool = True,
+    house: HouseConfig | None = None,
+    catalogue: Catalogue | None = None,
+) -> Scenario:
+    """Ten of the 18 objects at random collision-free resting poses, deterministic in ``seed``."""
+    house = house or load_house()
+    catalogue = catalogue or load_catalogue()
+    rng = np.random.default_rng([seed, 0x51])  # object choice, independent of the poses
+    chosen = [str(n) for n in rng.choice(list(catalogue.names), N_OBJECTS, replace=False)]
+    return _scenario(f"seed-{seed}", seed, chosen, house, catalogue, verify)
+
+
+def paper_scenario(
+    trial: int,
+    *,
+    verify: bool = True,
+    house: HouseConfig | None = None,
+    catalogue: Catalogue | None = None,
+) -> Scenario:
+    """Trial ``trial`` (1-5) of Table 4: exactly its ten objects, poses seeded by the trial."""
+    house = house or load_house()
+    catalogue = catalogue or load_catalogue()
+    names = [catalogue.resolve(n) for n in PAPER_TRIALS[trial]]
+    return _scenario(f"paper-{trial}", trial, names, house, catalogue, verify)
+
+
+def scenario_names() -> tuple[str, ...]:
+    """The named scenarios."""
+    return tuple(f"paper-{i}" for i in PAPER_TRIALS)
+
+
+def get_scenario(name_or_seed: str | int) -> Scenario:
+    """``"paper-3"`` → Table 4 trial 3; ``17``, ``"17"`` or ``"seed-17"`` → ``generate(17)``."""
+    if isinstance(name_or_seed, int):
+        return generate(name_or_seed)
+    text = str(name_or_seed).strip()
+    m = re.fullmatch(r"paper-(\d+)", text)
+    if m and int(m.group(1)) in PAPER_TRIALS:
+        return paper_scenario(int(m.group(1)))
+    m = re.fullmatch(r"(?:seed-)?(\d+)", text)
+    if m:
+        return generate(int(m.group(1)))
+    raise KeyError(f"unknown scenario {name_or_seed!r} (use paper-1..5 or a seed)")

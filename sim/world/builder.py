@@ -1,0 +1,191 @@
+"""``build_world``: house + scenario objects + robot as one MuJoCo model.
+
+The robot description is attached (not copied by hand) from
+``configs/robot/quadmanip_dog.xml`` so MuJoCo and pinocchio keep one source of truth; its
+physics options (1 kHz timestep, implicit-fast integrator, elliptic cones, impratio) become
+the world's. The scenario's object poses are the model's initial poses and are applied once
+by :meth:`World.initial_data`; after that only physics moves anything.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import mujoco
+import numpy as np
+
+from quadmanip.common import robot_description as rd
+from quadmanip.sim.world.house import (
+    DepositRegion,
+    HouseConfig,
+    Surface,
+    build_house,
+    load_house,
+)
+from quadmanip.sim.world.objects import Catalogue, add_object, load_catalogue
+
+if TYPE_CHECKING:
+    from quadmanip.sim.scenarios import Scenario
+
+__all__ = ["TIMESTEP", "World", "build_world"]
+
+TIMESTEP = 0.001
+
+
+@dataclass
+class World:
+    """A compiled world and everything needed to use it by name."""
+
+    model: mujoco.MjModel
+    spec: mujoco.MjSpec
+    house: HouseConfig
+    catalogue: Catalogue
+    scenario: Scenario | None
+    object_names: tuple[str, ...]
+    object_body_ids: dict[str, int]
+    regions: tuple[DepositRegion, ...]
+    surfaces: tuple[Surface, ...]
+    drawer_joints: dict[str, str]
+    drawer_bodies: dict[str, str]
+    drawer_handles: dict[str, str]
+    cameras: tuple[str, ...]
+    robot: bool
+    robot_start: tuple[float, float, float]  # x, y, yaw (rad) in the world
+    start_keyframe: str | None = None
+    _robot_qpos: dict[str, float] = field(default_factory=dict, repr=False)
+
+    def object_body(self, name: str) -> str:
+        """MuJoCo body name of a catalogue object (``obj/<name>``)."""
+        return f"obj/{name}"
+
+    def place_of(self, name: str) -> str:
+        """The deposit place an object belongs in."""
+        return self.catalogue.place_of(name)
+
+    def regions_for(self, place: str) -> tuple[DepositRegion, ...]:
+        """All judge regions of a deposit place (the drawer place has one per drawer)."""
+        return tuple(r for r in self.regions if r.place == place)
+
+    def initial_data(self) -> mujoco.MjData:
+        """A fresh ``MjData`` in the scenario's initial state: objects at their placements,
+        drawers closed, the robot at its start pose in its start keyframe, at rest."""
+        m = self.model
+        data = mujoco.MjData(m)
+        if self.robot:
+            x, y, yaw = self.robot_start
+            for jname, value in self._robot_qpos.items():
+                if "[" in jname:
+                    continue
+                data.qpos[m.jnt_qposadr[m.joint(jname).id]] = value
+            adr = m.jnt_qposadr[m.joint(rd.FREE_JOINT).id]
+            key_quat = np.array(self._robot_qpos_base[3:7])
+            yaw_q = np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
+            q = np.zeros(4)
+            mujoco.mju_mulQuat(q, yaw_q, key_quat)
+            data.qpos[adr : adr + 3] = [x, y, self._robot_qpos_base[2]]
+            data.qpos[adr + 3 : adr + 7] = q
+        if self.scenario is not None:
+            for p in self.scenario.objects:
+                adr = m.jnt_qposadr[m.joint(f"obj/{p.name}/free").id]
+                data.qpos[adr : adr + 3] = p.position
+                data.qpos[adr + 3 : adr + 7] = p.quat
+        for jname in self.drawer_joints.values():
+            data.qpos[m.jnt_qposadr[m.joint(jname).id]] = 0.0
+        data.qvel[:] = 0.0
+        mujoco.mj_forward(m, data)
+        return data
+
+    @property
+    def _robot_qpos_base(self) -> list[float]:
+        return [self._robot_qpos[f"{rd.FREE_JOINT}[{i}]"] for i in range(7)]
+
+
+def _copy_physics_options(dst: mujoco.MjSpec, src: mujoco.MjSpec) -> None:
+    dst.option.timestep = TIMESTEP
+    dst.option.integrator = src.option.integrator
+    dst.option.cone = src.option.cone
+    dst.option.impratio = src.option.impratio
+
+
+def _start_keyframe(house: HouseConfig) -> tuple[str | None, dict[str, float]]:
+    """The first configured start keyframe the robot has, as {joint: value} (free joint
+    entries as ``base_free[i]``)."""
+    rm = rd.load_mujoco_model()
+    names = [rm.key(i).name for i in range(rm.nkey)]
+    chosen = next((k for k in house.robot_start.keyframes if k in names), None)
+    qpos = rm.key(chosen).qpos if chosen else rm.qpos0
+    out: dict[str, float] = {}
+    for j in range(rm.njnt):
+        jname = rm.joint(j).name
+        adr = rm.jnt_qposadr[j]
+        if rm.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE:
+            for i in range(7):
+                out[f"{jname}[{i}]"] = float(qpos[adr + i])
+        elif rm.jnt_type[j] == mujoco.mjtJoint.mjJNT_BALL:
+            continue
+        else:
+            out[jname] = float(qpos[adr])
+    return chosen, out
+
+
+def build_world(
+    scenario: Scenario | None = None,
+    robot: bool = True,
+    house: HouseConfig | None = None,
+    catalogue: Catalogue | None = None,
+) -> World:
+    """Compile the house with the scenario's objects (and the robot unless ``robot=False``).
+
+    Objects start at their scenario placements; a scenario of ``None`` gives the empty house.
+    """
+    house = house or load_house()
+    catalogue = catalogue or load_catalogue()
+    spec = mujoco.MjSpec()
+    spec.modelname = "quadmanip_house"
+    robot_spec = rd.robot_spec()
+    _copy_physics_options(spec, robot_spec)
+    layout = build_house(spec, house)
+
+    names: list[str] = []
+    if scenario is not None:
+        for p in scenario.objects:
+            add_object(spec.worldbody, p.name, catalogue.objects[p.name], p.position, p.quat)
+            names.append(p.name)
+
+    x, y = house.robot_start.position
+    yaw = math.radians(house.robot_start.yaw)
+    key_name, robot_qpos = (None, {})
+    if robot:
+        key_name, robot_qpos = _start_keyframe(house)
+        frame = spec.worldbody.add_frame(
+            name="robot_start", pos=[x, y, 0.0], quat=[math.cos(yaw / 2), 0, 0, math.sin(yaw / 2)]
+        )
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            frame.attach_body(robot_spec.body(rd.BASE_BODY), "", "")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = spec.compile()
+    body_ids = {n: model.body(f"obj/{n}").id for n in names}
+    return World(
+        model=model,
+        spec=spec,
+        house=house,
+        catalogue=catalogue,
+        scenario=scenario,
+        object_names=tuple(names),
+        object_body_ids=body_ids,
+        regions=layout.regions,
+        surfaces=layout.surfaces,
+        drawer_joints=dict(layout.drawer_joints),
+        drawer_bodies=dict(layout.drawer_bodies),
+        drawer_handles=dict(layout.drawer_handles),
+        cameras=layout.cameras,
+        robot=robot,
+        robot_start=(x, y, yaw),
+        start_keyframe=key_name,
+        _robot_qpos=robot_qpos,
+    )

@@ -1,0 +1,300 @@
+"""The object catalogue (``configs/objects.toml``) and how each object becomes MuJoCo geoms.
+
+The 18 objects of the paper's Section 7.1 are YCB objects; the simulator cannot use their
+scanned meshes (MuJoCo collides the convex hull of a mesh, which would close a bowl's
+opening), so each object is composed of convex primitives: a box, a cylinder, a sphere, a
+recipe of parts, or a *vessel* (bowl, mug, cup) made of a ring of wall slabs plus a bottom
+disk, so its rim and opening are real. Sizes and masses are the YCB numbers; the mass is
+split over the parts by volume times a relative density.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from functools import lru_cache
+from typing import Literal
+
+import mujoco
+import numpy as np
+from quadmanip.common.config import load_config
+
+__all__ = [
+    "Catalogue",
+    "ObjectSpec",
+    "Part",
+    "Vessel",
+    "add_object",
+    "load_catalogue",
+    "object_parts",
+    "quat_from_euler_deg",
+]
+
+PartType = Literal["box", "cylinder", "sphere", "capsule", "ellipsoid"]
+
+_GEOM_TYPE = {
+    "box": mujoco.mjtGeom.mjGEOM_BOX,
+    "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER,
+    "sphere": mujoco.mjtGeom.mjGEOM_SPHERE,
+    "capsule": mujoco.mjtGeom.mjGEOM_CAPSULE,
+    "ellipsoid": mujoco.mjtGeom.mjGEOM_ELLIPSOID,
+}
+
+
+@dataclass(frozen=True)
+class Part:
+    """One convex primitive of an object, in the object's body frame (MuJoCo size rules)."""
+
+    type: PartType
+    size: tuple[float, ...]
+    pos: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    euler: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    weight: float = 1.0
+    rgba: tuple[float, float, float, float] | None = None
+
+
+@dataclass(frozen=True)
+class Vessel:
+    """Recipe of an open container: wall and bottom thickness, foot diameter, slab count."""
+
+    wall: float
+    bottom: float
+    bottom_diameter: float
+    segments: int = 16
+    handle: bool = False
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    """One catalogue entry: category, YCB source, bounding-box size, mass and shape recipe."""
+
+    ycb: str
+    category: str
+    mass: float
+    size: tuple[float, float, float]
+    shape: Literal["box", "cylinder", "sphere", "parts", "vessel"]
+    rgba: tuple[float, float, float, float]
+    aliases: tuple[str, ...] = ()
+    friction: tuple[float, float, float] = (0.9, 0.005, 0.0001)
+    condim: int = 4
+    parts: tuple[Part, ...] = ()
+    vessel: Vessel | None = None
+
+    def __post_init__(self) -> None:
+        if self.mass <= 0 or min(self.size) <= 0:
+            raise ValueError("mass and size must be positive")
+        if self.shape == "parts" and not self.parts:
+            raise ValueError("shape 'parts' needs a non-empty parts list")
+        if self.shape == "vessel" and self.vessel is None:
+            raise ValueError("shape 'vessel' needs a vessel table")
+
+    @property
+    def footprint_radius(self) -> float:
+        """Radius of the circle around the object's footprint (for spacing at placement)."""
+        return 0.5 * math.hypot(self.size[0], self.size[1])
+
+
+@dataclass(frozen=True)
+class Catalogue:
+    """All objects by name and the category → deposit place table (paper Section 7.2)."""
+
+    categories: dict[str, str]
+    objects: dict[str, ObjectSpec] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name, obj in self.objects.items():
+            if obj.category not in self.categories:
+                raise ValueError(f"object {name!r}: unknown category {obj.category!r}")
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Object names in catalogue order."""
+        return tuple(self.objects)
+
+    def place_of(self, name: str) -> str:
+        """The deposit place (``pencil_case``, ``tray``, ``drawer``...) an object belongs in."""
+        return self.categories[self.objects[name].category]
+
+    def resolve(self, name: str) -> str:
+        """Catalogue name of an object from its name or a paper alias ("driver", "sugar")."""
+        if name in self.objects:
+            return name
+        key = name.strip().lower()
+        for obj_name, obj in self.objects.items():
+            if key == obj_name or key in (a.lower() for a in obj.aliases):
+                return obj_name
+        raise KeyError(f"unknown object {name!r}")
+
+
+@lru_cache(maxsize=4)
+def load_catalogue(name_or_path: str = "objects") -> Catalogue:
+    """Load and validate the object catalogue (cached; it is immutable)."""
+    return load_config(Catalogue, name_or_path)
+
+
+# ----------------------------------------------------------------------------- geometry
+
+
+def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    out = np.zeros(4)
+    mujoco.mju_mulQuat(out, np.asarray(a, float), np.asarray(b, float))
+    return out
+
+
+def _quat_axis(axis: tuple[float, float, float], angle: float) -> np.ndarray:
+    out = np.zeros(4)
+    mujoco.mju_axisAngle2Quat(out, np.asarray(axis, float), angle)
+    return out
+
+
+def quat_from_euler_deg(euler: tuple[float, float, float]) -> np.ndarray:
+    """Quaternion [w, x, y, z] of intrinsic x-y-z Euler angles in degrees."""
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+    for axis, angle in zip(((1, 0, 0), (0, 1, 0), (0, 0, 1)), euler, strict=True):
+        if angle:
+            q = _quat_mul(q, _quat_axis(axis, math.radians(angle)))
+    return q
+
+
+@dataclass(frozen=True)
+class _Geom:
+    type: PartType
+    size: tuple[float, ...]
+    pos: np.ndarray
+    quat: np.ndarray
+    weight: float
+    rgba: tuple[float, float, float, float] | None
+
+
+def _volume(kind: str, size: tuple[float, ...]) -> float:
+    if kind == "box":
+        return 8.0 * size[0] * size[1] * size[2]
+    if kind == "cylinder":
+        return math.pi * size[0] ** 2 * 2.0 * size[1]
+    if kind == "sphere":
+        return 4.0 / 3.0 * math.pi * size[0] ** 3
+    if kind == "capsule":
+        return math.pi * size[0] ** 2 * 2.0 * size[1] + 4.0 / 3.0 * math.pi * size[0] ** 3
+    if kind == "ellipsoid":
+        return 4.0 / 3.0 * math.pi * size[0] * size[1] * size[2]
+    raise ValueError(kind)
+
+
+def _vessel_geoms(obj: ObjectSpec) -> list[_Geom]:
+    """Ring of wall slabs + bottom disk (+ C-shaped handle): a container with a real opening.
+
+    The slabs' outer faces form a regular N-gon whose inradius is the rim radius, so the
+    bounding box equals the catalogue size exactly. A flared wall (bowl, cup) leans out by
+    the angle that joins the foot diameter to the rim diameter.
+    """
+    v = obj.vessel
+    assert v is not None
+    sx, diameter, height = obj.size
+    reach = sx - diameter  # handle reach beyond the body (0 without a handle)
+    axis_x = -0.5 * reach
+    t, n = v.wall, v.segments
+    r_top, r_foot = 0.5 * diameter, 0.5 * v.bottom_diameter
+    z_lo, z_hi = -0.5 * height, 0.5 * height
+    alpha = math.atan2(r_top - r_foot, height)
+    for _ in range(8):  # fixed point: the corners depend on the lean angle
+        s, c = math.sin(alpha), math.cos(alpha)
+        r_b, z_b = r_top - 0.5 * t * c, z_hi - 0.5 * t * s
+        r_a, z_a = r_foot - 0.5 * t * c, z_lo + 0.5 * t * s
+        alpha = math.atan2(r_b - r_a, z_b - z_a)
+    length = math.hypot(r_b - r_a, z_b - z_a)
+    r_mid, z_mid = 0.5 * (r_a + r_b), 0.5 * (z_a + z_b)
+    half_w = r_top * math.tan(math.pi / n)
+    q_lean = _quat_axis((0, 1, 0), alpha)
+    geoms: list[_Geom] = []
+    for k in range(n):
+        th = 2.0 * math.pi * k / n
+        pos = np.array([axis_x + r_mid * math.cos(th), r_mid * math.sin(th), z_mid])
+        quat = _quat_mul(_quat_axis((0, 0, 1), th), q_lean)
+        geoms.append(_Geom("box", (0.5 * t, half_w, 0.5 * length), pos, quat, 1.0, None))
+    disk_r = r_a
+    geoms.append(
+        _Geom(
+            "cylinder",
+            (disk_r, 0.5 * v.bottom),
+            np.array([axis_x, 0.0, z_lo + 0.5 * v.bottom]),
+            np.array([1.0, 0.0, 0.0, 0.0]),
+            1.0,
+            None,
+        )
+    )
+    if v.handle and reach > 0:
+        bar, hw = 0.008, 0.006  # handle bar thickness and half-width (y)
+        x_wall = axis_x + r_top - t  # arms start inside the wall for a solid joint
+        x_out = 0.5 * sx
+        z_top, z_bot = z_hi - 0.012, z_lo + 0.015
+        arm_half = 0.5 * (x_out - x_wall)
+        arm_x = 0.5 * (x_out + x_wall)
+        ident = np.array([1.0, 0.0, 0.0, 0.0])
+        for z in (z_top - 0.5 * bar, z_bot + 0.5 * bar):
+            geoms.append(
+                _Geom("box", (arm_half, hw, 0.5 * bar), np.array([arm_x, 0, z]), ident, 1.0, None)
+            )
+        geoms.append(
+            _Geom(
+                "box",
+                (0.5 * bar, hw, 0.5 * (z_top - z_bot)),
+                np.array([x_out - 0.5 * bar, 0.0, 0.5 * (z_top + z_bot)]),
+                ident,
+                1.0,
+                None,
+            )
+        )
+    return geoms
+
+
+def object_parts(obj: ObjectSpec) -> list[_Geom]:
+    """The convex pieces of an object in its body frame (origin = bounding-box centre)."""
+    ident = np.array([1.0, 0.0, 0.0, 0.0])
+    sx, sy, sz = obj.size
+    if obj.shape == "box":
+        return [_Geom("box", (sx / 2, sy / 2, sz / 2), np.zeros(3), ident, 1.0, None)]
+    if obj.shape == "cylinder":
+        return [_Geom("cylinder", (sx / 2, sz / 2), np.zeros(3), ident, 1.0, None)]
+    if obj.shape == "sphere":
+        return [_Geom("sphere", (sx / 2,), np.zeros(3), ident, 1.0, None)]
+    if obj.shape == "vessel":
+        return _vessel_geoms(obj)
+    return [
+        _Geom(
+            p.type, p.size, np.asarray(p.pos, float), quat_from_euler_deg(p.euler), p.weight, p.rgba
+        )
+        for p in obj.parts
+    ]
+
+
+def add_object(
+    parent: mujoco.MjsBody,
+    name: str,
+    obj: ObjectSpec,
+    pos: tuple[float, float, float] | np.ndarray = (0.0, 0.0, 0.0),
+    quat: tuple[float, float, float, float] | np.ndarray = (1.0, 0.0, 0.0, 0.0),
+) -> mujoco.MjsBody:
+    """Add ``obj/<name>`` (a free body made of the object's convex parts) under ``parent``.
+
+    Every part gets mass = total mass x (weight x volume) / sum(weight x volume), so the body
+    weighs exactly the catalogue mass; MuJoCo derives the inertia from the shapes.
+    """
+    body = parent.add_body(name=f"obj/{name}", pos=list(pos), quat=list(quat))
+    body.add_freejoint(name=f"obj/{name}/free")
+    geoms = object_parts(obj)
+    weighted = [g.weight * _volume(g.type, g.size) for g in geoms]
+    total = sum(weighted)
+    for i, (g, w) in enumerate(zip(geoms, weighted, strict=True)):
+        body.add_geom(
+            name=f"obj/{name}/g{i}",
+            type=_GEOM_TYPE[g.type],
+            size=list(g.size) + [0.0] * (3 - len(g.size)),
+            pos=list(g.pos),
+            quat=list(g.quat),
+            mass=obj.mass * w / total,
+            rgba=list(g.rgba or obj.rgba),
+            friction=list(obj.friction),
+            condim=obj.condim,
+            group=2,
+        )
+    return body
