@@ -20,7 +20,6 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
-
 from quadmanip.sim.world.house import HouseConfig, Surface, load_house
 from quadmanip.sim.world.objects import Catalogue, load_catalogue
 

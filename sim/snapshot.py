@@ -22,7 +22,6 @@ def render_views(
     os.environ.setdefault("MUJOCO_GL", "egl")
     import cv2
     import mujoco
-
     from quadmanip.common import robot_description as rd
     from quadmanip.sim.scenarios import get_scenario
     from quadmanip.sim.world import build_world

@@ -16,7 +16,6 @@ from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
-
 from quadmanip.common import robot_description as rd
 from quadmanip.sim.world.house import (
     DepositRegion,

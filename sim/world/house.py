@@ -14,7 +14,6 @@ from functools import lru_cache
 
 import mujoco
 import numpy as np
-
 from quadmanip.common.config import load_config
 
 __all__ = [
