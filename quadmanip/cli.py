@@ -279,8 +279,15 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Console entry point ``quadmanip``."""
     _die_with_parent()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if len(argv) >= 3 and argv[0] == "service" and not argv[1].startswith("-"):
+        if {"-h", "--help"} & set(argv[2:]):
+            # `service NAME --help` shows the service's own options, not ours.
+            return _cmd_service(
+                argparse.Namespace(name=argv[1], config=None, robot=None, connect=None), ["--help"]
+            )
     parser = build_parser()
-    args, extra = parser.parse_known_args(list(sys.argv[1:] if argv is None else argv))
+    args, extra = parser.parse_known_args(argv)
     if extra and args.command in NO_EXTRA:
         parser.error(f"unrecognized arguments: {' '.join(extra)}")
     return int(args.func(args, extra))

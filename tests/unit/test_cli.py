@@ -122,6 +122,12 @@ def test_service_runs_the_registered_entry_point_with_its_options(fake_service, 
     ]
 
 
+def test_service_help_is_the_services_own(fake_service, capsys):
+    code, _ = run_cli(["service", "fake", "--help"], capsys)
+    assert code == 0
+    assert sys.modules[fake_service].CALLS == [(["--help"], None)]
+
+
 def test_unknown_service_is_reported_not_raised(capsys):
     code, out = run_cli(["service", "no_such_service"], capsys)
     assert code == cli.EXIT_UNAVAILABLE
