@@ -11,6 +11,7 @@ import time
 
 import psutil
 import pytest
+from quadmanip.common.bus import Bus, BusConfig
 
 from quadmanip import services_registry
 from quadmanip.launcher import free_endpoint
@@ -96,11 +97,27 @@ def _expected_children() -> set[str]:
     return {"router", *(n for n, p in services_registry.available().items() if p is None)}
 
 
+def _wait_alive(endpoint: str, services: set[str], timeout: float) -> set[str]:
+    """Services whose liveliness token is visible through the router (what a peer sees)."""
+    alive: set[str] = set()
+    with Bus(BusConfig(mode="client", connect=(endpoint,))) as bus:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and not services <= alive:
+            alive = bus.alive_services(timeout=1.0)
+            time.sleep(0.2)
+    return alive
+
+
 def test_up_starts_everything_and_stops_on_sigterm_within_3s(stack):
     up = stack()
-    time.sleep(1.0)  # let the services get past their imports and open their sessions
+    services = _expected_children() - {"router"}
+    # Every registered service really runs: its liveliness token reaches us via the router.
+    alive = _wait_alive(up.endpoint, services, START_TIMEOUT_S)
+    assert services <= alive, up.output
     children = up.descendants()
-    started = {line.split("started ", 1)[1].split(" ")[0] for line in up.lines if "started " in line}
+    started = {
+        line.split("started ", 1)[1].split(" ")[0] for line in up.lines if "started " in line
+    }
     assert started == _expected_children(), up.output
     assert len(children) >= len(started)
     assert all(p.is_running() for p in children), up.output
