@@ -118,6 +118,7 @@ class SimEngine:
         world: Any,
         config: SimConfig,
         *,
+        data: mujoco.MjData | None = None,
         cameras: bool = True,
         lidar: bool = True,
         ground_truth: bool = True,
@@ -125,7 +126,8 @@ class SimEngine:
         self.world = world
         self.config = config
         self.model: mujoco.MjModel = world.model
-        self.data: mujoco.MjData = world.data
+        # The scenario's initial state (a test may pass its own initial data, e.g. standing).
+        self.data: mujoco.MjData = data if data is not None else world.initial_data()
         m = self.model
         pc = config.physics
         if abs(m.opt.timestep - pc.timestep) > 1e-12:
@@ -161,11 +163,9 @@ class SimEngine:
         self._want_cameras = cameras
         self.lidar = Lidar(m, sc.lidar, self.rng) if lidar else None
 
-        self.object_names: list[str] = list(getattr(world, "object_names", []) or [])
-        self._object_bodies = np.array(
-            [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, n) for n in self.object_names],
-            dtype=int,
-        )
+        self.object_names: list[str] = list(getattr(world, "object_names", ()) or ())
+        body_ids = getattr(world, "object_body_ids", {}) or {}
+        self._object_bodies = np.array([body_ids[n] for n in self.object_names], dtype=int)
         self.judge = self._make_judge() if ground_truth else None
 
         self.tick = 0
