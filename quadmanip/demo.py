@@ -30,7 +30,7 @@ from quadmanip import services_registry
 from quadmanip.launcher import Launcher, free_endpoint, install_stop_signals
 
 # Extra arguments per service when the demo runs it (the sim free-runs in real time).
-DEMO_SERVICE_ARGS: dict[str, list[str]] = {"sim": ["--set", "node.mode=realtime"]}
+DEMO_SERVICE_ARGS: dict[str, list[str]] = {"sim": ["--realtime"]}
 SUMMARY_EVERY_S = 5.0  # table period when stdout is not a terminal
 
 

@@ -15,7 +15,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 # name -> "module:function"; the function takes argv (list[str]) and returns an exit code.
-SERVICES: dict[str, str] = {}
+SERVICES: dict[str, str] = {
+    "sim": "quadmanip.sim.node:main",
+}
 
 
 class ServiceUnavailable(RuntimeError):
