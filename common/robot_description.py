@@ -95,13 +95,13 @@ def robot_spec(xml: Path | str = ROBOT_XML) -> mujoco.MjSpec:
 
 
 def robot_only_with_floor(
-    xml: Path | str = ROBOT_XML, floor_friction: float = 1.0, key: str | None = HOME_KEY
+    xml: Path | str = ROBOT_XML, floor_friction: float = 1.0
 ) -> mujoco.MjModel:
     """The robot on an infinite flat floor with a light, for controller tests.
 
-    The floor lies in geom group 0 (the world's group) at z = 0. When `key` is given,
-    that keyframe becomes the model's default qpos (``qpos0``) so ``mj_resetData`` starts
-    from it; the free joint's reference is unaffected by this.
+    The floor lies in geom group 0 (the world's group) at z = 0. Start from a keyframe with
+    ``mujoco.mj_resetDataKeyframe(model, data, model.key("home").id)``; never overwrite
+    ``qpos0`` (MuJoCo measures hinge angles from it).
     """
     spec = robot_spec(xml)
     spec.worldbody.add_geom(
@@ -113,12 +113,12 @@ def robot_only_with_floor(
         group=0,
     )
     spec.worldbody.add_light(
-        pos=[0.0, 0.0, 3.0], dir=[0.0, 0.0, -1.0], directional=True, castshadow=False
+        pos=[0.0, 0.0, 3.0],
+        dir=[0.0, 0.0, -1.0],
+        type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL,
+        castshadow=False,
     )
-    model = spec.compile()
-    if key is not None:
-        model.qpos0[:] = model.key(key).qpos
-    return model
+    return spec.compile()
 
 
 def _ids(model: mujoco.MjModel, obj: mujoco.mjtObj, names: tuple[str, ...]) -> np.ndarray:
