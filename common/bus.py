@@ -22,7 +22,8 @@ counted per subscriber and in :attr:`Bus.stats`, logged at most once per second 
 and the subscriber keeps running.
 
 Sessions: ``mode`` peer (default: connects to the router, then links directly to other
-peers it learns of by gossip), client (everything through the router) or router.
+peers it learns of by gossip), client (everything through the router; opening waits
+until the router is reachable) or router.
 Multicast scouting is off by default so two stacks on one network never merge by accident.
 ``QM_ZENOH_CONNECT`` (comma-separated endpoints), ``QM_ZENOH_LISTEN`` and ``QM_ZENOH_MODE``
 override the file config (compose sets the first). The session retries its connect
@@ -65,6 +66,7 @@ from collections.abc import Callable, Iterable
 from typing import Any, Generic, Literal, TypeVar
 
 import zenoh
+from quadmanip.common import keys
 from quadmanip.common.config import load_config
 from quadmanip.common.log import get_logger
 from quadmanip.common.schema import Message, MessageError, decode, encode
@@ -179,7 +181,7 @@ def zenoh_config(config: BusConfig) -> zenoh.Config:
     # Never give up on the router: retry forever at a fixed, short period, and do not
     # fail the process if the router is not up yet (start order must not matter).
     period = config.reconnect_period_ms
-    put("connect/timeout_ms", -1 if config.mode != "client" else 0)
+    put("connect/timeout_ms", -1)
     put("connect/exit_on_failure", False)
     put(
         "connect/retry",
@@ -577,8 +579,8 @@ class Bus:
         clock: Callable[[], float] | None = None,
     ) -> None:
         self.config = config if config is not None else load_bus_config()
-        self.robot = robot
-        self.prefix = f"qm/{robot}/"
+        self.robot = keys.validate_robot_name(robot)
+        self.prefix = f"{keys.PREFIX}/{robot}/"
         self.clock: Callable[[], float] = clock or time.time
         self.stats = BusStats()
         self._entities: list[Any] = []
@@ -633,7 +635,7 @@ class Bus:
     # liveliness ------------------------------------------------------------------
     def declare_alive(self, service: str) -> zenoh.LivelinessToken:
         """Declare the liveliness token ``<service>/alive``; it vanishes with the process."""
-        token = self.session.liveliness().declare_token(self.key(f"{service}/alive"))
+        token = self.session.liveliness().declare_token(keys.alive_key(self.robot, service))
         return self._track(token)
 
     def watch_liveliness(
@@ -767,7 +769,7 @@ class ActionServer:
     ) -> None:
         if policy not in ("reject", "preempt", "parallel"):
             raise ValueError(f"unknown policy {policy!r}")
-        self.base = bus.key(f"{service}/action/{name}")
+        self.base = keys.action_key(bus.robot, service, name)
         self.goal_type = goal_type
         self._bus = bus
         self._execute = execute
@@ -1024,7 +1026,7 @@ class ActionClient:
 
     def __init__(self, bus: Bus, service: str, name: str) -> None:
         msgs = _messages()
-        self.base = bus.key(f"{service}/action/{name}")
+        self.base = keys.action_key(bus.robot, service, name)
         self._bus = bus
         self._lock = threading.Lock()
         self._handles: dict[str, ClientGoalHandle] = {}
