@@ -165,3 +165,42 @@ def test_up_rejects_an_unknown_service():
     )
     assert result.returncode == 2
     assert "no_such_service" in result.stdout
+
+
+def test_demo_runs_the_stack_and_saves_camera_frames(tmp_path):
+    out = tmp_path / "demo"
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "quadmanip.cli",
+            "demo",
+            "--duration",
+            "8",
+            "--out",
+            str(out),
+            "--frames-every",
+            "1",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl")),
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "demo: stopped cleanly" in result.stdout
+    running = _expected_children() - {"router"}
+    if not running:
+        assert "round trip through the router" in result.stdout
+        return
+    for name in running:
+        assert f"qm/dog1/{name}/heartbeat" in result.stdout
+    if "sim" in running:
+        import cv2
+
+        rgb = sorted(out.glob("front_*_rgb.png"))
+        depth = sorted(out.glob("front_*_depth.png"))
+        assert rgb and depth, sorted(p.name for p in out.iterdir())
+        image = cv2.imread(str(rgb[-1]))
+        assert image is not None and image.ndim == 3 and min(image.shape[:2]) >= 32
+        assert image.std() > 5.0  # a rendered room, not a blank frame
