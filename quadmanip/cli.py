@@ -13,6 +13,7 @@ import os
 import signal
 import sys
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 from quadmanip import services_registry
 
@@ -140,6 +141,8 @@ def _cmd_keys(args: argparse.Namespace, extra: list[str]) -> int:
     except ValueError as exc:
         print(f"quadmanip keys: {exc}", file=sys.stderr)
         return 2
+    if args.readme:
+        return _update_readme(Path(args.readme), keys.render_key_table_markdown())
     if args.markdown:
         print(keys.render_key_table_markdown(args.robot), end="")
         return 0
@@ -168,6 +171,34 @@ def _cmd_keys(args: argparse.Namespace, extra: list[str]) -> int:
     widths = [max(len(r[i]) for r in rows) for i in range(4)]
     for r in rows:
         print("  ".join(c.ljust(w) for c, w in zip(r[:4], widths, strict=True)) + "  " + r[4])
+    return 0
+
+
+README_KEYS_START = "<!-- keys:start"
+README_KEYS_END = "<!-- keys:end -->"
+
+
+def readme_key_block(text: str) -> tuple[int, int]:
+    """(start, end) offsets of the generated key table inside the README's markers."""
+    start = text.find(README_KEYS_START)
+    end = text.find(README_KEYS_END)
+    if start < 0 or end < start:
+        raise ValueError(f"no '{README_KEYS_START} ... {README_KEYS_END}' block")
+    return text.index("\n", start) + 1, end
+
+
+def _update_readme(path: Path, table: str) -> int:
+    text = path.read_text()
+    try:
+        start, end = readme_key_block(text)
+    except ValueError as exc:
+        print(f"quadmanip keys: {path}: {exc}", file=sys.stderr)
+        return 2
+    if text[start:end] != table:
+        path.write_text(text[:start] + table + text[end:])
+        print(f"updated the key table in {path}")
+    else:
+        print(f"key table in {path} is current")
     return 0
 
 
@@ -265,6 +296,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("keys", help="print the key table", description="Print the key table.")
     p.add_argument("--markdown", action="store_true", help="as a Markdown table (README)")
     p.add_argument("--robot", default="dog1", metavar="NAME", help="robot name (default dog1)")
+    p.add_argument(
+        "--readme", metavar="FILE", help="rewrite the generated table inside FILE's markers"
+    )
     p.set_defaults(func=_cmd_keys)
 
     p = sub.add_parser(

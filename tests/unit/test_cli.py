@@ -204,5 +204,20 @@ def test_keys_markdown_is_the_generated_table(capsys):
 
 def test_readme_key_table_is_the_generated_one():
     readme = (ROOT / "README.md").read_text()
-    table = keys.render_key_table_markdown()
-    assert table in readme, "README key table is stale: paste `quadmanip keys --markdown`"
+    start, end = cli.readme_key_block(readme)
+    assert readme[start:end] == keys.render_key_table_markdown(), (
+        "README key table is stale: run `quadmanip keys --readme README.md`"
+    )
+
+
+def test_keys_readme_rewrites_only_the_marked_block(tmp_path, capsys):
+    readme = tmp_path / "README.md"
+    readme.write_text("# x\n\n<!-- keys:start -->\n| old |\n<!-- keys:end -->\n\ntail\n")
+    assert run_cli(["keys", "--readme", str(readme)], capsys)[0] == 0
+    text = readme.read_text()
+    assert text.startswith("# x\n\n<!-- keys:start -->\n")
+    assert text.endswith("<!-- keys:end -->\n\ntail\n")
+    assert keys.render_key_table_markdown() in text and "| old |" not in text
+    assert "is current" in run_cli(["keys", "--readme", str(readme)], capsys)[1]
+    readme.write_text("no markers\n")
+    assert run_cli(["keys", "--readme", str(readme)], capsys)[0] == 2
