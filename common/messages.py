@@ -79,7 +79,8 @@ _MAX_TEXT = 4096  # free-text reasons / feedback
 
 def _unit_quat(q: np.ndarray, what: str) -> None:
     """Reject quaternions that are far from unit norm (a zero quaternion is no rotation)."""
-    n = float(np.dot(q, q))
+    w, x, y, z = q.tolist()
+    n = w * w + x * x + y * y + z * z
     if not 0.81 <= n <= 1.21:  # |q| within 10 %: generous for float32 sources and noise
         raise MessageError(f"{what} must be a unit quaternion [w,x,y,z], |q|={math.sqrt(n):.3g}")
 

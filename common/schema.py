@@ -211,12 +211,15 @@ class Message:
     VERSION: ClassVar[tuple[int, int]]
     __qm_specs__: ClassVar[tuple[FieldSpec, ...]] = ()
     __qm_plan__: ClassVar[tuple[Any, ...]] = ()
+    __qm_conv__: ClassVar[tuple[Any, ...]] = ()
+    __qm_enc__: ClassVar[tuple[Any, ...]] = ()
+    __qm_dec__: ClassVar[tuple[Any, ...]] = ()
 
     stamp: float
 
     def __post_init__(self) -> None:
         d = self.__dict__
-        for name, conv, _enc, _dec, _spec in type(self).__qm_plan__:
+        for name, conv in type(self).__qm_conv__:
             try:
                 d[name] = conv(d[name])
             except MessageError as e:
@@ -431,7 +434,27 @@ def _make_array(spec: FieldSpec) -> tuple[Callable, Callable, Callable]:
     nonneg = aspec.nonneg
     is_bool = dt.kind == "b"
 
-    def conv(v: Any) -> Any:
+    def check_values(a: np.ndarray, n: int) -> None:
+        if is_float:
+            if n > _SMALL:
+                _check_array_values(a, aspec)
+            elif n:
+                # Small arrays: checking Python floats is ~4x cheaper than numpy reductions.
+                vals = a.tolist() if ndim == 1 else a.ravel().tolist()
+                # sum() is non-finite iff some element is, or on overflow near 1.8e308
+                # (then the element-wise check decides).
+                if check_finite and not math.isfinite(sum(vals)):
+                    if not all(map(math.isfinite, vals)):
+                        _fail("array must be finite (found NaN/inf)")
+                if nonneg and min(vals) < 0.0:
+                    _fail("array must be >= 0")
+        elif is_bool:
+            if n and a.view(np.uint8).max() > 1:
+                _fail("bool array holds bytes other than 0/1")
+        else:
+            _check_array_values(a, aspec)
+
+    def conv_slow(v: Any) -> np.ndarray:
         if isinstance(v, (str, bytes, dict)) or v is None:
             _fail(f"expected an array {dstr}{_shape_str(aspec.shape)}, got {_type_name(v)}")
         try:
@@ -457,13 +480,21 @@ def _make_array(spec: FieldSpec) -> tuple[Callable, Callable, Callable]:
             if src.size and (src.min() < info.min or src.max() > info.max):
                 _fail(f"values out of range for {dstr}")
         with np.errstate(over="ignore", invalid="ignore"):
-            a = np.array(src, dtype=dt, order="C", copy=True)
-        _check_array_values(a, aspec)  # also catches f8 -> f4 overflow to inf
+            return np.array(src, dtype=dt, order="C", copy=True)
+
+    def conv(v: Any) -> Any:
+        if type(v) is np.ndarray and v.dtype == dt and fixed and v.shape == fixed_shape:
+            a = v.copy()  # fast path for the hot loops (sim, controllers): right array already
+        else:
+            a = conv_slow(v)
+        check_values(a, a.size)  # also catches f8 -> f4 overflow to inf
         a.flags.writeable = False
         return a
 
     def enc(a: np.ndarray) -> list:
-        return [dstr, list(a.shape), a.tobytes()]
+        # Large arrays go out as a buffer view (no tobytes() copy); arrays are C-contiguous.
+        data = a.data if a.nbytes > 4096 else a.tobytes()
+        return [dstr, fixed_list if fixed else list(a.shape), data]
 
     def dec(v: Any, depth: int) -> Any:
         if type(v) is not list or len(v) != 3:
@@ -498,25 +529,7 @@ def _make_array(spec: FieldSpec) -> tuple[Callable, Callable, Callable]:
         a = np.frombuffer(wb, dtype=dt)
         if ndim != 1:
             a = a.reshape(shape)
-        if is_float:
-            if n <= _SMALL:
-                # Small arrays: checking Python floats is ~4x cheaper than numpy reductions.
-                if n:
-                    vals = a.tolist() if ndim == 1 else a.ravel().tolist()
-                    # sum() is non-finite iff some element is, or on overflow near 1.8e308
-                    # (then the element-wise check decides).
-                    if check_finite and not math.isfinite(sum(vals)):
-                        if not all(map(math.isfinite, vals)):
-                            _fail("array must be finite (found NaN/inf)")
-                    if nonneg and min(vals) < 0.0:
-                        _fail("array must be >= 0")
-            else:
-                _check_array_values(a, aspec)
-        elif is_bool:
-            if wb and max(wb) > 1:
-                _fail("bool array holds bytes other than 0/1")
-        else:
-            _check_array_values(a, aspec)
+        check_values(a, n)
         return a
 
     return conv, enc, dec
@@ -651,6 +664,10 @@ def message(schema: str, version: tuple[int, int] = (1, 0)) -> Callable[[type[M]
             plan.append((s.name, conv, enc, dec, s))
         dc.__qm_specs__ = specs
         dc.__qm_plan__ = tuple(plan)
+        # Narrow views of the plan for the hot paths (fewer tuple unpacks per field).
+        dc.__qm_conv__ = tuple((p[0], p[1]) for p in plan)
+        dc.__qm_enc__ = tuple((p[0], None if p[2] is _identity else p[2]) for p in plan)
+        dc.__qm_dec__ = tuple((p[0], p[3]) for p in plan)
         dc.__qm_names__ = frozenset(s.name for s in specs)
         defaults = {}
         for f in dataclasses.fields(dc):
@@ -671,12 +688,10 @@ def message(schema: str, version: tuple[int, int] = (1, 0)) -> Callable[[type[M]
 def _encode_obj(msg: Message) -> list:
     cls = type(msg)
     d = msg.__dict__
-    return [
-        cls.SCHEMA,
-        cls.VERSION[0],
-        cls.VERSION[1],
-        {name: enc(d[name]) for name, _c, enc, _d, _s in cls.__qm_plan__},
-    ]
+    fields = {}
+    for name, enc in cls.__qm_enc__:
+        fields[name] = d[name] if enc is None else enc(d[name])
+    return [cls.SCHEMA, cls.VERSION[0], cls.VERSION[1], fields]
 
 
 def encode(msg: Message) -> bytes:
@@ -705,9 +720,10 @@ def _decode_obj(obj: Any, expected: type[Message] | None, depth: int) -> Message
         _fail(f"{schema}: unknown major version {major} (this build speaks {cls.VERSION[0]})")
     if type(fields) is not dict:
         _fail(f"{schema}: fields must be a map")
-    out: dict[str, Any] = {}
+    msg = object.__new__(cls)
+    out = msg.__dict__
     found = 0
-    for name, _conv, _enc, dec, _spec in cls.__qm_plan__:
+    for name, dec in cls.__qm_dec__:
         try:
             v = fields[name]
         except KeyError:
@@ -725,8 +741,6 @@ def _decode_obj(obj: Any, expected: type[Message] | None, depth: int) -> Message
         # Same or older minor: every key must be known to us; a newer minor may add fields.
         extra = sorted(str(k) for k in fields.keys() - cls.__qm_names__)
         _fail(f"{schema}: unknown fields {extra[:5]} in version {major}.{minor}")
-    msg = object.__new__(cls)
-    msg.__dict__.update(out)
     msg._check()
     return msg
 
