@@ -19,8 +19,14 @@ ENV PYTHONUNBUFFERED=1 \
 WORKDIR /opt/quadmanip
 
 # The heavy, rarely changing dependency first, so code edits do not re-download it.
-# torch==2.13.0 is the CPU build (installs without the CUDA packages).
-RUN pip install "torch==2.13.0"
+# torch==2.13.0 is pinned to the CPU build. Where the default index serves a CUDA build,
+# pass the CPU wheel index: --build-arg TORCH_INDEX_URL=<index url>.
+ARG TORCH_INDEX_URL=""
+RUN if [ -n "$TORCH_INDEX_URL" ]; then \
+        pip install --index-url "$TORCH_INDEX_URL" "torch==2.13.0"; \
+    else \
+        pip install "torch==2.13.0"; \
+    fi
 
 COPY pyproject.toml setup.py README.md ./
 COPY quadmanip ./quadmanip
