@@ -151,7 +151,14 @@ def build_world(
     names: list[str] = []
     if scenario is not None:
         for p in scenario.objects:
-            add_object(spec.worldbody, p.name, catalogue.objects[p.name], p.position, p.quat)
+            add_object(
+                spec.worldbody,
+                p.name,
+                catalogue.objects[p.name],
+                p.position,
+                p.quat,
+                catalogue.contact,
+            )
             names.append(p.name)
 
     x, y = house.robot_start.position

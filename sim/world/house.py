@@ -241,6 +241,10 @@ class HouseLayout:
 # ----------------------------------------------------------------------------- helpers
 
 _BOX = mujoco.mjtGeom.mjGEOM_BOX
+#: Furniture, walls and drawers are stiff (wood): time constant 4 physics steps, so objects
+#: dropped into a tray or drawer do not sink into its thin bottom. The floor keeps MuJoCo's
+#: default so the legged robot's foot contacts are exactly what locomotion was tuned on.
+FURNITURE_SOLREF = (0.004, 1.0)
 
 
 def camera_quat(pos: np.ndarray, target: np.ndarray) -> np.ndarray:
@@ -274,7 +278,13 @@ def _box(
     mass: float | None = None,
 ) -> mujoco.MjsGeom:
     geom = body.add_geom(
-        name=name, type=_BOX, pos=list(center), size=list(half), rgba=list(rgba), group=0
+        name=name,
+        type=_BOX,
+        pos=list(center),
+        size=list(half),
+        rgba=list(rgba),
+        group=0,
+        solref=list(FURNITURE_SOLREF),
     )
     if material:
         geom.material = material

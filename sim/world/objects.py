@@ -21,6 +21,7 @@ from quadmanip.common.config import load_config
 
 __all__ = [
     "Catalogue",
+    "Contact",
     "ObjectSpec",
     "Part",
     "Vessel",
@@ -95,11 +96,20 @@ class ObjectSpec:
 
 
 @dataclass(frozen=True)
+class Contact:
+    """Contact parameters shared by every object geom (MuJoCo ``solref``, ``solmix``)."""
+
+    solref: tuple[float, float] = (0.004, 1.0)
+    solmix: float = 10.0
+
+
+@dataclass(frozen=True)
 class Catalogue:
     """All objects by name and the category → deposit place table (paper Section 7.2)."""
 
     categories: dict[str, str]
     objects: dict[str, ObjectSpec] = field(default_factory=dict)
+    contact: Contact = field(default_factory=Contact)
 
     def __post_init__(self) -> None:
         for name, obj in self.objects.items():
@@ -273,12 +283,14 @@ def add_object(
     obj: ObjectSpec,
     pos: tuple[float, float, float] | np.ndarray = (0.0, 0.0, 0.0),
     quat: tuple[float, float, float, float] | np.ndarray = (1.0, 0.0, 0.0, 0.0),
+    contact: Contact | None = None,
 ) -> mujoco.MjsBody:
     """Add ``obj/<name>`` (a free body made of the object's convex parts) under ``parent``.
 
     Every part gets mass = total mass x (weight x volume) / sum(weight x volume), so the body
     weighs exactly the catalogue mass; MuJoCo derives the inertia from the shapes.
     """
+    contact = contact or Contact()
     body = parent.add_body(name=f"obj/{name}", pos=list(pos), quat=list(quat))
     body.add_freejoint(name=f"obj/{name}/free")
     geoms = object_parts(obj)
@@ -295,6 +307,8 @@ def add_object(
             rgba=list(g.rgba or obj.rgba),
             friction=list(obj.friction),
             condim=obj.condim,
+            solref=list(contact.solref),
+            solmix=contact.solmix,
             group=2,
         )
     return body

@@ -1,0 +1,128 @@
+"""Scenarios: deterministic, collision-free, resting; paper-1..5 hold Table 4's lists."""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+import pytest
+from quadmanip.common import robot_description as rd
+from quadmanip.sim.scenarios import (
+    DROP_GAP,
+    N_OBJECTS,
+    generate,
+    get_scenario,
+    object_contacts,
+    paper_scenario,
+)
+from quadmanip.sim.world import build_world, load_catalogue
+
+pytestmark = pytest.mark.unit
+
+# Table 4, translated by hand to catalogue names ("driver" = screwdriver, "cracker" =
+# cracker box, "sugar" = sugar box, "tomato soup" = tomato soup can).
+TABLE_4 = {
+    1: {"rubiks_cube", "clamp", "marker", "cracker_box", "spoon", "lego", "coffee_can",
+        "baseball", "bowl", "cup"},
+    2: {"tennis_ball", "bowl", "screwdriver", "padlock", "spoon", "sugar_box",
+        "tomato_soup_can", "toy_gun", "mug", "brick"},
+    3: {"tennis_ball", "mug", "screwdriver", "toy_gun", "padlock", "coffee_can",
+        "rubiks_cube", "tomato_soup_can", "bowl", "brick"},
+    4: {"tennis_ball", "bowl", "padlock", "lego", "marker", "cracker_box", "brick", "mug",
+        "tomato_soup_can", "rubiks_cube"},
+    5: {"marker", "mug", "tomato_soup_can", "rubiks_cube", "clamp", "screwdriver", "cup",
+        "bowl", "coffee_can", "baseball"},
+}  # fmt: skip
+
+
+def _check_placed_at_rest_and_free(scenario):
+    """Poses lie on their surfaces, nothing touches anything, and 0.5 s of physics with the
+    passive robot leaves every object where it was."""
+    cat = load_catalogue()
+    world = build_world(scenario, robot=True)
+    surfaces = {s.name: s for s in world.surfaces}
+    for p in scenario.objects:
+        s = surfaces[p.surface]
+        obj = cat.objects[p.name]
+        assert s.min[0] <= p.position[0] <= s.max[0] and s.min[1] <= p.position[1] <= s.max[1]
+        assert p.position[2] == pytest.approx(s.z + obj.size[2] / 2 + DROP_GAP)
+        assert np.linalg.norm(p.quat) == pytest.approx(1.0)
+    data = world.initial_data()
+    assert object_contacts(world.model, data) == []
+    # Not inside the robot's start footprint.
+    rs = world.house.robot_start
+    for p in scenario.objects:
+        r = cat.objects[p.name].footprint_radius
+        assert (abs(p.position[0] - rs.position[0]) > rs.footprint[0] / 2 + r - 1e-9) or (
+            abs(p.position[1] - rs.position[1]) > rs.footprint[1] / 2 + r - 1e-9
+        )
+    ids = [world.object_body_ids[n] for n in world.object_names]
+    start = data.xpos[ids].copy()
+    for _ in range(500):
+        mujoco.mj_step(world.model, data)
+    moved = np.linalg.norm(data.xpos[ids] - start, axis=1)
+    assert moved.max() < 0.01, dict(zip(world.object_names, moved.round(4), strict=True))
+    return world
+
+
+def test_same_seed_same_world_different_seed_different_world():
+    a, b, c = generate(11), generate(11), generate(12)
+    assert a == b
+    assert a.object_names != c.object_names or any(
+        pa.position != pc.position for pa, pc in zip(a.objects, c.objects, strict=True)
+    )
+    assert get_scenario(11) == a == get_scenario("seed-11") == get_scenario("11")
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_generated_scenarios_are_ten_objects_collision_free(seed):
+    scenario = generate(seed)
+    names = scenario.object_names
+    assert len(names) == N_OBJECTS == 10 and len(set(names)) == 10
+    assert set(names) <= set(load_catalogue().names)
+    kinds = {s.name: s.kind for s in build_world(None, robot=False).surfaces}
+    assert {kinds[p.surface] for p in scenario.objects} <= {"floor", "table"}
+    _check_placed_at_rest_and_free(scenario)
+
+
+def test_seeds_use_floor_and_tables_and_all_objects():
+    """Across seeds the generator uses both kinds of surface and every object eventually."""
+    kinds, seen = set(), set()
+    surf_kind = {s.name: s.kind for s in build_world(None, robot=False).surfaces}
+    for seed in range(8):
+        sc = generate(seed, verify=False)
+        kinds |= {surf_kind[p.surface] for p in sc.objects}
+        seen |= set(sc.object_names)
+    assert kinds == {"floor", "table"}
+    assert len(seen) >= 16
+
+
+@pytest.mark.parametrize("trial", [1, 2, 3, 4, 5])
+def test_paper_scenarios_hold_table_4_lists(trial):
+    scenario = get_scenario(f"paper-{trial}")
+    assert scenario.name == f"paper-{trial}"
+    assert len(scenario.objects) == 10
+    assert set(scenario.object_names) == TABLE_4[trial]
+    assert scenario == paper_scenario(trial)  # deterministic
+
+
+def test_paper_scenario_is_collision_free_with_the_robot():
+    world = _check_placed_at_rest_and_free(get_scenario("paper-2"))
+    # The robot starts in the living room and the objects are spread over both rooms.
+    base = world.initial_data().xpos[world.model.body(rd.BASE_BODY).id]
+    assert world.house.room_at(base[0], base[1]) == "living_room"
+
+
+def test_unknown_scenario_is_an_error():
+    with pytest.raises(KeyError):
+        get_scenario("paper-9")
+    with pytest.raises(KeyError):
+        get_scenario("kitchen")
+
+
+def test_yaw_only_orientations():
+    for p in generate(5, verify=False).objects:
+        w, x, y, z = p.quat
+        assert x == 0.0 and y == 0.0
+        assert math.isclose(w * w + z * z, 1.0)
