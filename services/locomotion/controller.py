@@ -62,6 +62,31 @@ class LegGains:
 
 
 @dataclass(frozen=True)
+class Profile:
+    """A named parameter set: MPC weights, gait timing and Algorithm 7's PLANNED_ACC."""
+
+    weights: MpcWeights = field(default_factory=MpcWeights)
+    gait: GaitParams = field(default_factory=GaitParams)
+    planned_acc: float = 2.0
+
+
+def default_profiles() -> dict[str, Profile]:
+    """`paper` = Table 3 as printed; `tuned` = what walks best here (docs/locomotion.md)."""
+    tuned = Profile(
+        weights=MpcWeights(
+            q_theta=(50.0, 50.0, 10.0),
+            q_p=(10.0, 10.0, 50.0),
+            q_omega=(1.0, 1.0, 0.3),
+            q_v=(5.0, 5.0, 1.0),
+            r_u=4e-5,
+        ),
+        gait=GaitParams(t_swing=0.2, t_stance=0.05, foot_height=0.08),
+        planned_acc=10.0,
+    )
+    return {"paper": Profile(), "tuned": tuned}
+
+
+@dataclass(frozen=True)
 class LocomotionConfig:
     """Everything the controller needs (configs/locomotion.toml)."""
 
@@ -71,13 +96,10 @@ class LocomotionConfig:
     sit_time: float = 1.2
     cmd_timeout: float = 0.2
     held_mass: float = 0.0
-    weight_set: str = "tuned"
-    weights: dict[str, MpcWeights] = field(
-        default_factory=lambda: {"paper": MpcWeights(), "tuned": MpcWeights()}
-    )
+    profile: str = "tuned"
+    profiles: dict[str, Profile] = field(default_factory=default_profiles)
     sit_pose: tuple[float, float, float] = (0.0, 1.2, -2.6)  # abad, hip, knee
     mpc: MpcParams = field(default_factory=MpcParams)
-    gait: GaitParams = field(default_factory=GaitParams)
     swing: SwingParams = field(default_factory=SwingParams)
     estimator: EstimatorParams = field(default_factory=EstimatorParams)
     fsm: FsmParams = field(default_factory=FsmParams)
@@ -86,7 +108,7 @@ class LocomotionConfig:
 
 
 def load_locomotion_config(name: str = "locomotion", **overrides: object) -> LocomotionConfig:
-    """Load configs/<name>.toml (overrides as dotted keys, e.g. weight_set="paper")."""
+    """Load configs/<name>.toml (overrides as dotted keys, e.g. profile="paper")."""
     from quadmanip.common.config import load_config
 
     return load_config(LocomotionConfig, name, overrides or None)
@@ -127,15 +149,16 @@ class LocomotionController:
 
     def __init__(self, config: LocomotionConfig, mjcf: str | None = None) -> None:
         self.cfg = config
-        if config.weight_set not in config.weights:
-            raise ValueError(f"unknown weight set {config.weight_set!r}")
-        mpc_params = replace(config.mpc, weights=config.weights[config.weight_set])
+        if config.profile not in config.profiles:
+            raise ValueError(f"unknown profile {config.profile!r}")
+        prof = config.profiles[config.profile]
+        mpc_params = replace(config.mpc, weights=prof.weights)
         self.mpc = ConvexMpc(mpc_params)
         self.mpc_every = max(1, round(mpc_params.dt / config.control_dt))
-        self.gait = TrotGait(config.gait)
+        self.gait = TrotGait(prof.gait)
         self.kin = LegKinematics(mjcf)
         self.est = StateEstimator(config.estimator)
-        self.ref = ComReference(config.fsm)
+        self.ref = ComReference(replace(config.fsm, planned_acc=prof.planned_acc))
         self.mode = "damp"
         self.phase = "damp"  # internal: damp, sit, standing_up, balance, walk, stopping
         self.held_mass = float(config.held_mass)
@@ -162,6 +185,7 @@ class LocomotionController:
         self._stand_yaw = 0.0
         self._stand_xy = np.zeros(2)
         self._stop_requested = False
+        self._auto_walk = True
         self._inertia = self.kin.body_inertia(self.held_mass)
         self.last_rpy = np.zeros(3)
 
@@ -189,11 +213,14 @@ class LocomotionController:
         if mode == self.mode:
             return
         if mode == "walk" and self.phase not in ("balance", "walk", "stopping"):
-            if self.phase == "standing_up":
-                self.mode = "walk"  # will start walking once standing
-                return
             raise CommandError("walk needs the robot standing first (mode 'stand')")
         self.mode = mode
+        if mode == "walk":
+            # Explicit walk: trot (in place without velocity commands) until told to stand.
+            self._auto_walk = False
+            if self.phase != "walk":
+                self._start_walk()
+            return
         if mode == "damp":
             self.phase = "damp"
         elif mode == "sit":
@@ -219,8 +246,10 @@ class LocomotionController:
         self.cmd_vel = v
         self.cmd_vel_time = float(now)
         if self.phase in ("balance", "stopping") and np.any(np.abs(v) > 1e-6):
+            if self.phase == "balance":
+                self._auto_walk = True
             self._start_walk()
-        self.mode = "walk"
+            self.mode = "walk"
 
     def set_body_pose(
         self, z: float, x: float, y: float, roll: float, pitch: float, yaw: float
@@ -337,8 +366,8 @@ class LocomotionController:
         cmd = self.cmd_vel.copy()
         if walking and self._t - self.cmd_vel_time > cfg.cmd_timeout:
             cmd[:] = 0.0
-            self._stop_requested = True
-        if walking and np.all(np.abs(self.cmd_vel) < 1e-6):
+            self._stop_requested = self._stop_requested or self._auto_walk
+        if walking and self._auto_walk and np.all(np.abs(self.cmd_vel) < 1e-6):
             self._stop_requested = True
         # Estimator.
         foot_vel = self.kin.foot_velocities(dq16[:12])
@@ -394,7 +423,7 @@ class LocomotionController:
         v_cmd_w3 = np.array([v_cmd_w[0], v_cmd_w[1], 0.0])
         hips_w = (r @ self.nominal_feet.T).T + pos
         hip_off_w = (r @ self.nominal_feet.T).T
-        t_left = np.where(progress >= 0, (1.0 - progress) * cfg.gait.t_swing, 0.0)
+        t_left = np.where(progress >= 0, (1.0 - progress) * self.gait.params.t_swing, 0.0)
         self._td_target = touchdown_target(
             hips_w, vel, v_cmd_w3, cmd[2] if walking else 0.0, hip_off_w,
             self.gait.stance_duration(), t_left, cfg.swing, cfg.estimator.foot_radius,
@@ -420,8 +449,8 @@ class LocomotionController:
                 dq_des[sl] = np.linalg.lstsq(self.kin.foot_jac[i], v_rel_b, rcond=None)[0]
             else:
                 p_des_w, v_des_w = swing_profile(
-                    self._liftoff[i], self._td_target[i], progress[i], cfg.gait.t_swing,
-                    cfg.gait.foot_height,
+                    self._liftoff[i], self._td_target[i], progress[i], self.gait.params.t_swing,
+                    self.gait.params.foot_height,
                 )  # fmt: skip
                 p_des_b = r.T @ (p_des_w - pos)
                 v_des_b = r.T @ (v_des_w - vel) - np.cross(w_b, p_des_b)

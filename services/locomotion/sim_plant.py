@@ -16,7 +16,7 @@ import numpy as np
 
 from quadmanip.common import messages as msg
 from quadmanip.common import robot_description as rd
-from quadmanip.sim.engine import SimConfig, SimEngine
+from quadmanip.sim.engine import PhysicsConfig, SimConfig, SimEngine
 
 
 class SimPlant:
@@ -35,8 +35,13 @@ class SimPlant:
         if key is not None:
             mujoco.mj_resetDataKeyframe(model, data, model.key(key).id)
         world = SimpleNamespace(model=model, data=data, object_names=[])
-        cfg = SimConfig(seed=seed, allow_test_disturbance=True)
-        self.engine = SimEngine(world, cfg, cameras=False, lidar=False, ground_truth=False)
+        # Island sleeping only matters for resting objects; the robot alone has none.
+        cfg = SimConfig(
+            seed=seed, allow_test_disturbance=True, physics=PhysicsConfig(sleep=False)
+        )
+        self.engine = SimEngine(
+            world, cfg, data=data, cameras=False, lidar=False, ground_truth=False
+        )
         self.model, self.data = model, data
         self._base = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "base")
         self._hold_cmd: msg.LegCommand | None = None

@@ -28,7 +28,7 @@ class SwingParams:
     """Foot placement and swing tracking gains."""
 
     extra_time: float = 0.0  # EXTRA_DIST of Algorithm 8, expressed in seconds
-    feedback_gain: float = 0.08  # s, capture-point gain on (v - v_cmd)
+    feedback_gain: float = 0.15  # s, capture-point gain on (v - v_cmd)
     max_step: float = 0.15  # m, bound on the step offset from the hip
     kp_cartesian: tuple[float, float, float] = (500.0, 500.0, 500.0)  # N/m
     kd_cartesian: tuple[float, float, float] = (12.0, 12.0, 12.0)  # N s/m
