@@ -336,6 +336,27 @@ def _default_maps() -> tuple[np.ndarray, np.ndarray]:
     return _pin_qpos_map(pmodel, _robot_model_cached())
 
 
+@lru_cache(maxsize=1)
+def _robot_joint_names() -> tuple[str, ...]:
+    m = _robot_model_cached()
+    return tuple(m.joint(j).name for j in range(m.njnt))
+
+
+def robot_qpos(model: mujoco.MjModel, qpos: np.ndarray) -> np.ndarray:
+    """The robot's own 25 coordinates, in robot-only order, from a bigger model's qpos.
+
+    A world model (house, objects) holds the robot's joints under the same names; this
+    gathers them so `mujoco_qpos_to_pinocchio` and the keyframe helpers apply.
+    """
+    ref = _robot_model_cached()
+    out = np.empty(ref.nq)
+    for name in _robot_joint_names():
+        src, dst = model.joint(name), ref.joint(name)
+        n = 7 if dst.type[0] == mujoco.mjtJoint.mjJNT_FREE else 1
+        out[dst.qposadr[0] : dst.qposadr[0] + n] = qpos[src.qposadr[0] : src.qposadr[0] + n]
+    return out
+
+
 def mujoco_qpos_to_pinocchio(qpos: np.ndarray) -> np.ndarray:
     """MuJoCo qpos [p, q_wxyz, joints] -> pinocchio q [p, q_xyzw, joints] (default robot).
 

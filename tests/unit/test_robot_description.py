@@ -583,3 +583,23 @@ def test_lidar_sees_360_degrees(floor_model) -> None:
     )
     blocked = np.mean((geomid >= 0) & (dist < 2.0))
     assert blocked < 0.15
+
+
+@pytest.mark.filterwarnings("ignore:Attach")  # options and the empty prefix, as the sim does
+def test_robot_qpos_from_a_bigger_model() -> None:
+    """The robot's coordinates are found by name in a world whose qpos starts elsewhere."""
+    world = mujoco.MjSpec()
+    box = world.worldbody.add_body(name="box", pos=[1.0, 0.0, 0.1])
+    box.add_freejoint(name="box")
+    box.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.05, 0.05, 0.05], mass=0.2)
+    world.worldbody.add_frame().attach_body(rd.robot_spec().body(rd.BASE_BODY), "", "")
+    big = world.compile()
+    assert big.jnt_qposadr[big.joint(rd.FREE_JOINT).id] == 7  # after the box
+    robot = rd.load_mujoco_model()
+    qpos = _random_qpos(robot, np.random.default_rng(8))
+    full = big.qpos0.copy()
+    for j in range(robot.njnt):
+        ref, dst = robot.joint(j), big.joint(robot.joint(j).name)
+        n = 7 if ref.type[0] == mujoco.mjtJoint.mjJNT_FREE else 1
+        full[dst.qposadr[0] : dst.qposadr[0] + n] = qpos[ref.qposadr[0] : ref.qposadr[0] + n]
+    np.testing.assert_array_equal(rd.robot_qpos(big, full), qpos)
