@@ -5,8 +5,12 @@ robot, e.g. ``"sim/lowstate"``; :func:`key` turns it into the full key for a rob
 README includes :func:`render_key_table_markdown`.
 
 Kinds decide transport QoS in the bus: ``control`` (reliable, congestion control *block*,
-higher priority), ``sensor`` (best effort, *drop*, latest-only), ``gt`` (ground truth, for
-the judge/tests/viz only — no service may subscribe), ``action`` (action request/reply).
+higher priority), ``sensor`` (best effort, *drop*, latest-only), ``event`` (low-rate,
+reliable: heartbeats), ``gt`` (ground truth, for the judge/tests/viz only — no service may
+subscribe), ``action`` (action request/reply).
+
+``sim/lowstate`` is ``control``, not ``sensor``: in lockstep the sim waits for the answer
+to every LowState, so one must never be dropped.
 """
 
 from __future__ import annotations
@@ -45,7 +49,7 @@ SERVICES: tuple[str, ...] = (
     "viz",
 )
 """Every service name that may own keys (the process registry may run a subset)."""
-KINDS: tuple[str, ...] = ("control", "sensor", "gt", "action")
+KINDS: tuple[str, ...] = ("control", "sensor", "event", "gt", "action")
 
 _ROBOT_RE = re.compile(r"^[a-z][a-z0-9_]{0,31}$")
 _CHUNK_RE = re.compile(r"^[a-z][a-z0-9_]*$")
@@ -96,7 +100,7 @@ _TABLE: tuple[Topic, ...] = (
     _t("locomotion", "odometry", m.Odometry, "sensor", "out", "estimated base state (odom)"),
     _t("locomotion", "debug", m.LocomotionDebug, "sensor", "out", "gait, forces, MPC"),
 ) + tuple(
-    _t(s, "heartbeat", m.Heartbeat, "sensor", "out", "1 Hz service heartbeat") for s in SERVICES
+    _t(s, "heartbeat", m.Heartbeat, "event", "out", "1 Hz service heartbeat") for s in SERVICES
 )
 
 TOPICS: dict[str, Topic] = {t.name: t for t in _TABLE}

@@ -395,10 +395,21 @@ def _check_array_values(a: np.ndarray, spec: ArraySpec) -> None:
     if a.size == 0:
         return
     if kind == "f":
-        if spec.finite and not np.isfinite(a).all():
-            _fail("array must be finite (found NaN/inf)")
-        if spec.nonneg and (a < 0).any():
-            _fail("array must be >= 0")
+        # Reductions without temporaries: NaN propagates through min/sum, inf through
+        # max/sum; a non-finite sum of finite values (overflow) is confirmed element-wise.
+        if spec.nonneg:
+            lo = a.min()
+            if not lo >= 0.0:  # also NaN
+                if spec.finite and np.isnan(lo):
+                    _fail("array must be finite (found NaN/inf)")
+                _fail("array must be >= 0")
+            if spec.finite and not math.isfinite(a.max()):
+                _fail("array must be finite (found NaN/inf)")
+        elif spec.finite:
+            with np.errstate(over="ignore", invalid="ignore"):
+                total = a.sum()
+            if not math.isfinite(total) and not np.isfinite(a).all():
+                _fail("array must be finite (found NaN/inf)")
     elif kind == "b":
         if a.view(np.uint8).max() > 1:
             _fail("bool array holds bytes other than 0/1")

@@ -399,3 +399,31 @@ def test_only_message_error_escapes_decode(monkeypatch: pytest.MonkeyPatch) -> N
         decode(_pack(["qm.Clock", 1, 0, {"stamp": 0.0}]))
     assert issubclass(MessageError, ValueError)
     assert schema.MessageError is m.MessageError
+
+
+def test_msgpack_oddities_rejected() -> None:
+    good = _wire(m.Clock(stamp=1.0))
+    cases = [
+        _pack(msgpack.ExtType(5, b"abc")),
+        _pack(["qm.Clock", 1, 0, {"stamp": msgpack.ExtType(1, b"\x00" * 8)}]),
+        _pack(["qm.Clock", 1, 0, {"stamp": msgpack.Timestamp(1, 0)}]),
+        _pack(["qm.Clock", 1, 0, {1: 0.0}]),  # non-str map key
+        b"\x94\xa8qm.Clock\x01\x00\x81\xa5st\xffmp\xcb" + b"\x00" * 8,  # invalid UTF-8 key
+        _pack(good) + _pack(good),  # two messages in one payload
+        _pack([b"qm.Clock", 1, 0, {"stamp": 0.0}]),  # schema as bytes
+        _pack(["qm.Clock", 1, 0, {"stamp": 0.0}, "extra"]),
+        _pack(["qm.Clock", 1.0, 0, {"stamp": 0.0}]),
+        _pack(["qm.Clock", True, 0, {"stamp": 0.0}]),
+        _pack(["qm.Clock", 1, 0, [0.0]]),
+        _pack(["qm.LowState", 1, 0, {"stamp": 0.0, "tick": 1 << 63, "joints": None, "imu": None}]),
+    ]
+    for data in cases:
+        with pytest.raises(MessageError):
+            decode(data)
+
+
+def test_float_fields_accept_wire_ints_but_not_bools() -> None:
+    assert decode(_pack(["qm.Clock", 1, 0, {"stamp": 3}])) == m.Clock(stamp=3.0)
+    assert type(decode(_pack(["qm.Clock", 1, 0, {"stamp": 3}])).stamp) is float
+    with pytest.raises(MessageError, match="float"):
+        decode(_pack(["qm.Clock", 1, 0, {"stamp": False}]))
