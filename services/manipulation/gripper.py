@@ -6,13 +6,14 @@ stalls the fingers at the object's width with the effort saturated at the comman
 limit; closing on nothing drives the gap to the closed stop with the effort falling back
 to ~0. So after a close command, once the gap has settled:
 
-* ``HOLDING``: gap above ``empty_gap`` and effort at least ``hold_effort_frac`` of the
-  force limit;
+* ``HOLDING``: gap above ``empty_gap`` and effort at least ``hold_min_effort``. An absolute
+  threshold, not a fraction of the force limit: a position loop closing on a thin object
+  (a 3 mm cup wall) stalls before its force saturates;
 * ``EMPTY``: gap at or below ``empty_gap`` (fingers met), or no effort;
 
 and while carrying, ``LOST`` when the gap collapses by more than ``slip_gap`` from the
 width measured at grasp time or below ``empty_gap``, or the effort stays below
-``lost_effort_frac`` of the limit for ``lost_debounce`` seconds.
+``lost_min_effort`` for ``lost_debounce`` seconds.
 """
 
 from __future__ import annotations
@@ -30,12 +31,12 @@ class GripperConfig:
     open_gap: float = 0.08
     close_gap: float = 0.0
     max_force: float = 25.0
-    empty_gap: float = 0.004
+    empty_gap: float = 0.0015
     settle_speed: float = 0.005
     settle_time: float = 0.15
     close_timeout: float = 2.0
-    hold_effort_frac: float = 0.5
-    lost_effort_frac: float = 0.2
+    hold_min_effort: float = 2.0
+    lost_min_effort: float = 1.0
     slip_gap: float = 0.006
     lost_debounce: float = 0.1
 
@@ -96,7 +97,7 @@ class GraspMonitor:
                 self._settled_since = None
             settled = self._settled_since is not None and t - self._settled_since >= cfg.settle_time
             if settled or t - self._t_cmd >= cfg.close_timeout:
-                if gap > cfg.empty_gap and eff >= cfg.hold_effort_frac * self.max_force:
+                if gap > cfg.empty_gap and eff >= cfg.hold_min_effort:
                     self.state = GripState.HOLDING
                     self.grasp_gap = gap
                 else:
@@ -105,7 +106,7 @@ class GraspMonitor:
             assert self.grasp_gap is not None
             if gap <= cfg.empty_gap or gap < self.grasp_gap - cfg.slip_gap:
                 self.state = GripState.LOST
-            elif eff < cfg.lost_effort_frac * self.max_force:
+            elif eff < cfg.lost_min_effort:
                 if self._weak_since is None:
                     self._weak_since = t
                 if t - self._weak_since >= cfg.lost_debounce:

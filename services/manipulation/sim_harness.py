@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 from quadmanip.common import robot_description as rd
+from quadmanip.services.manipulation.gravity import GravityCompensator
 from quadmanip.services.manipulation.primitive import (
     ArmCommand,
     BodyPoseRequest,
@@ -37,7 +38,7 @@ from quadmanip.services.manipulation.primitive import (
 from quadmanip.sim.actuators import ActuatorConfig, ActuatorLayer
 from quadmanip.sim.world.objects import add_object, load_catalogue
 
-__all__ = ["Box", "PlacedObject", "SimHarness"]
+__all__ = ["Box", "GraspSpec", "PlacedObject", "SimHarness", "grasp_from_ground_truth"]
 
 LEG_JOINTS = tuple(
     f"{leg}_{j}" for leg in ("FL", "FR", "RL", "RR") for j in ("abad", "hip", "knee")
@@ -155,6 +156,7 @@ class SimHarness:
         self._tau_ff = self._gravity_ff(self._leg_q)
         self._send_legs()
         self.log = HarnessLog()
+        self.gravity = GravityCompensator()
 
     # ------------------------------------------------------------ ground truth
     def object_pos(self, name: str) -> np.ndarray:
@@ -197,7 +199,8 @@ class SimHarness:
         now = float(self.data.time)
         for c in cmds:
             if isinstance(c, ArmCommand):
-                ok = self.act.set_arm_trajectory(now, c.traj.t, c.traj.q, c.traj.dq, kp, kd)
+                q_cmd = self.gravity.offset_knots(c.traj, kp)  # as the node sends it
+                ok = self.act.set_arm_trajectory(now, c.traj.t, q_cmd, c.traj.dq, kp, kd)
                 if not ok:
                     raise RuntimeError(
                         f"actuator layer rejected a trajectory: {self.act.reject_reasons}"
@@ -314,3 +317,96 @@ class SimHarness:
             self.apply(prim.cancel(self.observation()), kp, kd)
             prim.reason = "timeout"
         return prim
+
+
+# --------------------------------------------------------------------------- ground truth
+@dataclass(frozen=True)
+class GraspSpec:
+    """A grasp pose for the primitives, computed from ground truth (stands in for perception)."""
+
+    position_base: np.ndarray
+    approach: str
+    yaw: float
+    width: float
+
+
+def _part_extent(g: object) -> tuple[np.ndarray, np.ndarray]:
+    """Centre and axis-aligned half extents (object frame) of one catalogue part."""
+    size = np.asarray(g.size, dtype=float)  # type: ignore[attr-defined]
+    kind = g.type  # type: ignore[attr-defined]
+    if kind == "sphere":
+        h = np.full(3, size[0])
+    elif kind in ("cylinder", "capsule"):
+        h = np.array([size[0], size[0], size[1] + (size[0] if kind == "capsule" else 0.0)])
+    else:
+        h = size[:3]
+    rot = np.zeros(9)
+    mujoco.mju_quat2Mat(rot, np.asarray(g.quat, dtype=float))  # type: ignore[attr-defined]
+    return np.asarray(g.pos, dtype=float), np.abs(rot.reshape(3, 3)) @ h  # type: ignore[attr-defined]
+
+
+def grasp_from_ground_truth(
+    h: SimHarness, name: str, surface_z: float, approach: str = "vertical", max_width: float = 0.085
+) -> GraspSpec:
+    """Grasp pose for object ``name`` from its true pose (TEST HARNESS ONLY).
+
+    Vertical: above the largest part's centre, fingers across its narrower horizontal side,
+    tool centre 2.5 cm below the object's top but at least 2.1 cm above the supporting
+    surface (the fingertips reach 2 cm beyond the tool centre). Vessels are grasped at the
+    rim, fingers across the wall, on the side nearest the robot away from a handle.
+    Horizontal: at the object's centre (at most 5 cm above the surface), fingers across the
+    object's extent along the body y axis.
+    """
+    from quadmanip.sim.world.objects import object_parts
+
+    spec = h.catalogue.objects[name]
+    p = h.object_pos(name)
+    rot = h.data.body(f"obj/{name}").xmat.reshape(3, 3).copy()
+    obj_yaw = math.atan2(rot[1, 0], rot[0, 0])
+    _, base_rot = h.base_pose()
+    base_yaw = math.atan2(base_rot[1, 0], base_rot[0, 0])
+    top = surface_z + spec.size[2]
+    if spec.shape == "vessel" and approach == "vertical":
+        v = spec.vessel
+        assert v is not None
+        reach = spec.size[0] - spec.size[1]
+        axis = p + rot @ np.array([-0.5 * reach, 0.0, 0.0])
+        r = 0.5 * spec.size[1] - 0.5 * v.wall
+        base_pos, _ = h.base_pose()
+        best = None
+        for th in (0.5 * math.pi, math.pi, 1.5 * math.pi) + ((0.0,) if not v.handle else ()):
+            d_world = rot @ np.array([math.cos(th), math.sin(th), 0.0])
+            pt = axis + r * d_world
+            dist = float(np.linalg.norm(pt[:2] - base_pos[:2]))
+            if best is None or dist < best[0]:
+                best = (dist, pt, math.atan2(d_world[1], d_world[0]))
+        assert best is not None
+        _, pt, ang = best
+        pt = pt.copy()
+        pt[2] = top - 0.012
+        return GraspSpec(
+            h.world_to_base(pt), "vertical", ang - math.pi / 2 - base_yaw, v.wall + 0.01
+        )
+    parts = object_parts(spec)
+    if spec.shape == "parts":
+        vols = []
+        for g in parts:
+            _, he = _part_extent(g)
+            vols.append(g.weight * float(np.prod(he)))
+        centre, half = _part_extent(parts[int(np.argmax(vols))])
+    else:
+        centre, half = np.zeros(3), 0.5 * np.asarray(spec.size)
+    pt = p + rot @ centre
+    if approach == "vertical":
+        # close across the narrower of the part's horizontal sides that fits
+        if 2 * half[1] <= max_width and (half[1] <= half[0] or 2 * half[0] > max_width):
+            yaw, width = obj_yaw, 2 * half[1]
+        else:
+            yaw, width = obj_yaw + math.pi / 2, 2 * half[0]
+        pt[2] = max(surface_z + 0.021, min(pt[2], top - 0.025))
+        return GraspSpec(h.world_to_base(pt), "vertical", yaw - base_yaw, float(width))
+    # horizontal: extent across the body's y axis
+    ext = np.abs(rot) @ (0.5 * np.asarray(spec.size))
+    pt = p.copy()
+    pt[2] = surface_z + min(0.05, max(0.02, 0.5 * spec.size[2]))
+    return GraspSpec(h.world_to_base(pt), "horizontal", 0.0, float(2 * ext[1]))

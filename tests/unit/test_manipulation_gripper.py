@@ -40,11 +40,11 @@ def test_close_on_nothing_is_empty():
 
 
 def test_stalled_without_effort_is_not_holding():
-    """Fingers blocked at 3 cm but effort at 10 % of the limit: not a grasp."""
+    """Fingers stopped at 3 cm with (almost) no effort: not a grasp."""
     mon = GraspMonitor(CFG)
     mon.command_close(0.0)
     for ti in np.arange(0.0, 1.0, DT):
-        mon.update(ti, 0.03, 0.1 * CFG.max_force)
+        mon.update(ti, 0.03, 0.5 * CFG.hold_min_effort)
     assert mon.state is GripState.EMPTY
 
 
