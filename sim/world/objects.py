@@ -194,7 +194,8 @@ def _vessel_geoms(obj: ObjectSpec) -> list[_Geom]:
     """Ring of wall slabs + bottom disk (+ C-shaped handle): a container with a real opening.
 
     The slabs' outer faces form a regular N-gon whose inradius is the rim radius, so the
-    bounding box equals the catalogue size exactly. A flared wall (bowl, cup) leans out by
+    bounding box equals the catalogue size exactly; the slabs start inside the bottom disk,
+    so the vessel stands on its disk alone. A flared wall (bowl, cup) leans out by
     the angle that joins the foot diameter to the rim diameter.
     """
     v = obj.vessel
@@ -209,7 +210,9 @@ def _vessel_geoms(obj: ObjectSpec) -> list[_Geom]:
     for _ in range(8):  # fixed point: the corners depend on the lean angle
         s, c = math.sin(alpha), math.cos(alpha)
         r_b, z_b = r_top - 0.5 * t * c, z_hi - 0.5 * t * s
-        r_a, z_a = r_foot - 0.5 * t * c, z_lo + 0.5 * t * s
+        # The wall's lowest corner sits inside the bottom disk, not on the support: only the
+        # disk touches the table (3-4 contacts instead of two per slab).
+        r_a, z_a = r_foot - 0.5 * t * c, z_lo + 0.5 * v.bottom + 0.5 * t * s
         alpha = math.atan2(r_b - r_a, z_b - z_a)
     length = math.hypot(r_b - r_a, z_b - z_a)
     r_mid, z_mid = 0.5 * (r_a + r_b), 0.5 * (z_a + z_b)
