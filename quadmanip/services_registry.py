@@ -17,6 +17,7 @@ from dataclasses import dataclass
 # name -> "module:function"; the function takes argv (list[str]) and returns an exit code.
 SERVICES: dict[str, str] = {
     "sim": "quadmanip.sim.node:main",
+    "locomotion": "quadmanip.services.locomotion.node:main",
 }
 
 

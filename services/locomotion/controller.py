@@ -62,6 +62,17 @@ class LegGains:
 
 
 @dataclass(frozen=True)
+class NodeOptions:
+    """Settings of the Zenoh node only ([node] table)."""
+
+    start_mode: str = "damp"  # mode at start: damp (wait for a command) or stand
+    held_object_mass: float = 0.5  # kg assumed while the gripper holds something
+    grip_effort_threshold: float = 2.0  # N of squeeze that means "holding"
+    grip_min_gap: float = 0.005  # m, below this the fingers closed on nothing
+    odometry_every: int = 1  # ticks between odometry messages
+
+
+@dataclass(frozen=True)
 class Profile:
     """A named parameter set: MPC weights, gait timing and Algorithm 7's PLANNED_ACC."""
 
@@ -105,6 +116,7 @@ class LocomotionConfig:
     fsm: FsmParams = field(default_factory=FsmParams)
     limits: Limits = field(default_factory=Limits)
     gains: LegGains = field(default_factory=LegGains)
+    node: NodeOptions = field(default_factory=NodeOptions)
 
 
 def load_locomotion_config(name: str = "locomotion", **overrides: object) -> LocomotionConfig:
@@ -186,6 +198,7 @@ class LocomotionController:
         self._stand_xy = np.zeros(2)
         self._stop_requested = False
         self._auto_walk = True
+        self.mpc_tick = 0
         self._inertia = self.kin.body_inertia(self.held_mass)
         self.last_rpy = np.zeros(3)
 
@@ -480,6 +493,7 @@ class LocomotionController:
         t0 = time.perf_counter()
         p = self.mpc.params
         n = p.horizon
+        self.mpc_tick += 1
         self._inertia = self.kin.body_inertia(self.held_mass)
         bi = self._inertia
         r = self.est.R

@@ -1,0 +1,180 @@
+"""The locomotion service process: `LocomotionController` wired to Zenoh.
+
+Every `sim/lowstate` (500 Hz; encoders + IMU) is answered at once with a `sim/leg_command`
+that echoes its tick (the sim's lockstep mode waits for it). Commands arrive on
+`locomotion/cmd_vel`, `locomotion/body_pose` and `locomotion/mode`; invalid ones are
+rejected with a logged reason and counted. Outputs: `locomotion/odometry` (every tick) and
+`locomotion/debug` (every MPC step). The held-object mass in the MPC comes from the gripper
+state in the LowState: fingers squeezing on something (effort above a threshold with a gap
+above a minimum) count as holding `held_object_mass` — a conservative estimate, since a
+real robot cannot weigh the object either.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+
+import numpy as np
+
+from quadmanip.common import messages as m
+from quadmanip.common.service import Input, Output, Service, run_service
+from quadmanip.services.locomotion.controller import (
+    CommandError,
+    LocomotionConfig,
+    LocomotionController,
+    NodeOptions,
+)
+
+
+class LocomotionNode(Service):
+    """Answers each LowState with a LegCommand; takes mode/velocity/pose commands."""
+
+    name = "locomotion"
+    config_type = LocomotionConfig
+    config_name = "locomotion"
+    inputs = (
+        Input("sim/lowstate", m.LowState, doc="500 Hz encoders + IMU"),
+        Input("locomotion/cmd_vel", m.BodyVelocityCommand, doc="body velocity (base frame)"),
+        Input("locomotion/body_pose", m.BodyPoseCommand, doc="body pose offsets (standing)"),
+        Input("locomotion/mode", m.LocomotionMode, doc="stand/sit/damp/walk"),
+    )
+    outputs = (
+        Output("sim/leg_command", m.LegCommand, kind="control"),
+        Output("locomotion/odometry", m.Odometry, kind="sensor"),
+        Output("locomotion/debug", m.LocomotionDebug, kind="sensor"),
+    )
+
+    def setup(self) -> None:
+        cfg: LocomotionConfig = self.config
+        self.ctl = LocomotionController(cfg)
+        self.lock = threading.Lock()
+        self.rejected = 0
+        self.ticks = 0
+        self.pub_cmd = self.publisher("sim/leg_command")
+        self.pub_odom = self.publisher("locomotion/odometry")
+        self.pub_debug = self.publisher("locomotion/debug")
+        self._last_stamp = 0.0
+        self._last_mpc_tick = -1
+        if cfg.node.start_mode != "damp":
+            self.ctl.set_mode(cfg.node.start_mode)
+        self.subscribe("locomotion/mode", self._on_mode)
+        self.subscribe("locomotion/cmd_vel", self._on_cmd_vel)
+        self.subscribe("locomotion/body_pose", self._on_body_pose)
+        self.subscribe("sim/lowstate", self._on_lowstate)
+        self.log.info("locomotion ready", profile=cfg.profile, mpc_every=self.ctl.mpc_every)
+
+    # ------------------------------------------------------------------ commands
+    def _reject(self, what: str, exc: Exception) -> None:
+        self.rejected += 1
+        self.log.warning("command rejected", command=what, reason=str(exc), total=self.rejected)
+
+    def _on_mode(self, msg: m.LocomotionMode) -> None:
+        with self.lock:
+            try:
+                self.ctl.set_mode(msg.mode)
+                self.log.info("mode", mode=msg.mode)
+            except CommandError as exc:
+                self._reject("mode", exc)
+
+    def _on_cmd_vel(self, msg: m.BodyVelocityCommand) -> None:
+        with self.lock:
+            try:
+                # Time of arrival in robot time: the last LowState stamp.
+                self.ctl.set_velocity(msg.vx, msg.vy, msg.wz, now=self._last_stamp)
+            except CommandError as exc:
+                self._reject("cmd_vel", exc)
+
+    def _on_body_pose(self, msg: m.BodyPoseCommand) -> None:
+        with self.lock:
+            try:
+                self.ctl.set_body_pose(
+                    msg.z_offset, msg.x_offset, msg.y_offset, msg.roll, msg.pitch, msg.yaw
+                )
+            except CommandError as exc:
+                self._reject("body_pose", exc)
+
+    # ------------------------------------------------------------------ control loop
+    def _held_mass(self, js: m.JointState) -> float:
+        opt: NodeOptions = self.config.node
+        holding = js.gripper_effort > opt.grip_effort_threshold and js.gripper_gap > opt.grip_min_gap
+        return opt.held_object_mass if holding else 0.0
+
+    def _on_lowstate(self, ls: m.LowState) -> None:
+        with self.lock:
+            self._last_stamp = float(ls.stamp)
+            self.ctl.held_mass = self._held_mass(ls.joints)
+            out = self.ctl.step(
+                ls.stamp,
+                ls.joints.q,
+                ls.joints.dq,
+                ls.imu.orientation,
+                ls.imu.angular_velocity,
+                ls.imu.linear_acceleration,
+            )
+            cmd = m.LegCommand(
+                stamp=ls.stamp,
+                tick=ls.tick,
+                q_des=out.q_des,
+                dq_des=out.dq_des,
+                kp=out.kp,
+                kd=out.kd,
+                tau_ff=out.tau_ff,
+            )
+            self.pub_cmd.publish(cmd)
+            self.ticks += 1
+            if self.ctl.phase in ("balance", "walk", "stopping"):
+                if self.ticks % max(1, self.config.node.odometry_every) == 0:
+                    self.pub_odom.publish(self._odometry(ls.stamp))
+                if self.ctl.mpc_tick != self._last_mpc_tick:
+                    self._last_mpc_tick = self.ctl.mpc_tick
+                    self.pub_debug.publish(self._debug(ls.stamp))
+
+    def _odometry(self, stamp: float) -> m.Odometry:
+        est = self.ctl.est
+        r = est.R
+        q = _rot_to_quat(r)
+        return m.Odometry(
+            stamp=stamp,
+            position=est.position,
+            orientation=q,
+            linear_velocity=r.T @ est.velocity,
+            angular_velocity=est.omega_body,
+        )
+
+    def _debug(self, stamp: float) -> m.LocomotionDebug:
+        d = self.ctl.debug
+        pred = d.predicted[:, 3:6] if d.predicted.size else np.zeros((0, 3))
+        return m.LocomotionDebug(
+            stamp=stamp,
+            gait_phase=d.gait_phase,
+            contact=d.contact,
+            foot_forces=d.foot_forces,
+            mpc_solve_ms=d.mpc_solver_s * 1e3,
+            mpc_predicted_positions=pred,
+        )
+
+
+def _rot_to_quat(r: np.ndarray) -> np.ndarray:
+    """Rotation matrix → unit quaternion [w, x, y, z] (Shepperd's method)."""
+    tr = float(np.trace(r))
+    if tr > 0.0:
+        s = math.sqrt(tr + 1.0) * 2.0
+        q = [0.25 * s, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s]
+    elif r[0, 0] > r[1, 1] and r[0, 0] > r[2, 2]:
+        s = math.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2]) * 2.0
+        q = [(r[2, 1] - r[1, 2]) / s, 0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s]
+    elif r[1, 1] > r[2, 2]:
+        s = math.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2]) * 2.0
+        q = [(r[0, 2] - r[2, 0]) / s, (r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s]
+    else:
+        s = math.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1]) * 2.0
+        q = [(r[1, 0] - r[0, 1]) / s, (r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s]
+    qa = np.asarray(q)
+    qa = qa / np.linalg.norm(qa)
+    return qa if qa[0] >= 0 else -qa
+
+
+def main(argv: list[str]) -> int:
+    """Entry point of `quadmanip service locomotion`."""
+    return run_service(LocomotionNode, argv)
