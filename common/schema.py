@@ -110,13 +110,13 @@ class FieldSpec:
 
     ``kind`` is one of ``float``, ``int``, ``bool``, ``str``, ``str_list``, ``array``,
     ``message`` (a specific nested class, ``msg_type``) or ``any_message`` (any registered
-    message). ``optional`` allows ``None``.
+    message). ``optional`` allows ``None``. Float scalars are always required finite: no
+    field in the system needs NaN/inf, and a NaN that reaches a controller is a crash.
     """
 
     name: str
     kind: str
     optional: bool = False
-    finite: bool = True
     array: ArraySpec | None = None
     msg_type: type[Message] | None = None
     max_len: int = MAX_STR_LEN
@@ -173,11 +173,6 @@ def string_list(
     return dataclasses.field(metadata={_META_KEY: meta})
 
 
-def nonfinite_ok() -> Any:
-    """Mark a float field that may legitimately hold NaN/inf (rare; say why where used)."""
-    return dataclasses.field(metadata={_META_KEY: {"finite": False}})
-
-
 # --------------------------------------------------------------------------- registry
 
 _REGISTRY: dict[str, type[Message]] = {}
@@ -214,6 +209,8 @@ class Message:
     __qm_conv__: ClassVar[tuple[Any, ...]] = ()
     __qm_enc__: ClassVar[tuple[Any, ...]] = ()
     __qm_dec__: ClassVar[tuple[Any, ...]] = ()
+    __qm_names__: ClassVar[frozenset[str]] = frozenset()
+    __qm_defaults__: ClassVar[dict[str, tuple[bool, Any]]] = {}
 
     stamp: float
 
@@ -273,7 +270,6 @@ def _type_name(v: object) -> str:
 
 
 def _make_float(spec: FieldSpec) -> tuple[Callable, Callable, Callable]:
-    finite = spec.finite
     optional = spec.optional
 
     def conv(v: Any) -> Any:
@@ -281,21 +277,21 @@ def _make_float(spec: FieldSpec) -> tuple[Callable, Callable, Callable]:
             return None
         if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
             _fail(f"expected a float, got {_type_name(v)}")
-        f = float(v)
-        if finite and not math.isfinite(f):
+        try:
+            f = float(v)
+        except OverflowError:
+            _fail("int too large for a float")
+        if not math.isfinite(f):
             _fail(f"must be finite, got {f}")
         return f
 
     def dec(v: Any, depth: int) -> Any:
         if type(v) is float:
-            if finite and not math.isfinite(v):
+            if not math.isfinite(v):
                 _fail(f"must be finite, got {v}")
             return v
-        if type(v) is int:
-            f = float(v)
-            if finite and not math.isfinite(f):  # pragma: no cover - ints are finite
-                _fail("must be finite")
-            return f
+        if type(v) is int:  # a non-Python sender may write 0 for 0.0; msgpack ints fit
+            return float(v)
         if v is None and optional:
             return None
         _fail(f"expected a float, got {_type_name(v)}")
@@ -353,9 +349,18 @@ def _check_str(v: Any, spec: FieldSpec) -> str:
     return v
 
 
+def _check_utf8(v: str) -> str:
+    if not v.isascii():
+        try:
+            v.encode("utf-8")
+        except UnicodeEncodeError:
+            _fail("string is not encodable as UTF-8 (lone surrogate)")
+    return v
+
+
 def _make_str(spec: FieldSpec) -> tuple[Callable, Callable, Callable]:
     def conv(v: Any) -> Any:
-        return _check_str(v, spec)
+        return _check_utf8(_check_str(v, spec))
 
     def dec(v: Any, depth: int) -> Any:
         if type(v) is not str:
@@ -371,7 +376,7 @@ def _make_str_list(spec: FieldSpec) -> tuple[Callable, Callable, Callable]:
             _fail(f"expected a list of str, got {_type_name(v)}")
         if len(v) > spec.max_items:
             _fail(f"more than {spec.max_items} items ({len(v)})")
-        return tuple(_check_str(s, spec) for s in v)
+        return tuple(_check_utf8(_check_str(s, spec)) for s in v)
 
     def enc(v: tuple[str, ...]) -> list[str]:
         return list(v)
@@ -615,7 +620,7 @@ def _spec_for(cls: type, f: dataclasses.Field, hint: Any) -> FieldSpec:
         return FieldSpec(kind="array", array=meta, **common)
     meta = meta or {}
     if hint is float:
-        return FieldSpec(kind="float", finite=meta.get("finite", True), **common)
+        return FieldSpec(kind="float", **common)
     if (
         optional
         and hint is not Message
@@ -709,7 +714,10 @@ def encode(msg: Message) -> bytes:
     """Serialise a message to msgpack bytes (the message was validated on construction)."""
     if not isinstance(msg, Message) or type(msg).SCHEMA not in _REGISTRY:
         raise MessageError(f"not a registered message: {_type_name(msg)}")
-    return msgpack.packb(_encode_obj(msg), use_bin_type=True)
+    try:
+        return msgpack.packb(_encode_obj(msg), use_bin_type=True)
+    except Exception as e:  # only reachable if a message was mutated behind validation
+        raise MessageError(f"cannot encode {type(msg).SCHEMA}: {type(e).__name__}: {e}") from None
 
 
 def _decode_obj(obj: Any, expected: type[Message] | None, depth: int) -> Message:

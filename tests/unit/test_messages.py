@@ -128,6 +128,7 @@ def test_lists_convert_to_validated_read_only_arrays() -> None:
         ({"stamp": math.nan}, "finite"),
         ({"stamp": "0"}, "float"),
         ({"stamp": True}, "float"),
+        ({"stamp": 10**400}, "too large"),
         ({"tick": 1.0}, "int"),
         ({"tick": 1 << 64}, "int64"),
     ],
@@ -168,6 +169,12 @@ def test_cross_field_checks() -> None:
         m.ActionResult(stamp=0.0, goal_id="g", status="done")
     with pytest.raises(MessageError, match="longer"):
         m.Heartbeat(stamp=0.0, service="s" * 300, seq=0, state="running")
+    with pytest.raises(MessageError, match="UTF-8"):
+        m.Heartbeat(stamp=0.0, service="s\ud800", seq=0, state="running")
+    with pytest.raises(MessageError, match="UTF-8"):
+        m.JudgeReport(stamp=0.0, trial_time=0.0, in_place=["\udfff"], misplaced=[], total=1)
+    hb = m.Heartbeat(stamp=0.0, service="Küche-ロボット", seq=0, state="running")
+    assert decode(encode(hb)) == hb
     with pytest.raises(MessageError, match="names"):
         m.GroundTruthPoses(stamp=0, names=["a", "b"], positions=np.zeros((1, 3)),
                            orientations=[[1, 0, 0, 0]])  # fmt: skip
@@ -285,7 +292,7 @@ def _float_paths(msg: Message) -> list[tuple[str, str]]:
     return [
         (s.name, s.kind)
         for s in field_specs(type(msg))
-        if (s.kind == "float" and s.finite)
+        if s.kind == "float"
         or (s.kind == "array" and s.array is not None and s.array.dtype.kind == "f")
     ]
 
