@@ -38,27 +38,13 @@ import mujoco
 import numpy as np
 from quadmanip.common import messages as msg
 from quadmanip.common import robot_description as rd
+from quadmanip.sim.engine import standing_data
 
 SCENARIO = "paper-1"
 
 
 def _say(text: str) -> None:
     print(f"[bench sim] {text}", flush=True)
-
-
-def standing_data(world: Any) -> mujoco.MjData:
-    """The scenario's initial state with the robot in the ``home`` standing pose at its
-    start position (set before the run starts, as a scenario's initial condition)."""
-    m = world.model
-    d = world.initial_data()
-    home = rd.home_qpos(rd.load_mujoco_model())
-    jq = rd.joint_qpos_indices(m)
-    d.qpos[jq] = home[rd.joint_qpos_indices(rd.load_mujoco_model())]
-    adr = rd.free_joint_qpos_index(m)
-    d.qpos[adr + 2] = home[rd.free_joint_qpos_index(rd.load_mujoco_model()) + 2]
-    d.qvel[:] = 0.0
-    mujoco.mj_forward(m, d)
-    return d
 
 
 # --------------------------------------------------------------------------- parts

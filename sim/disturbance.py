@@ -40,6 +40,8 @@ class DisturbanceChannel:
         self.active: list[ActiveDisturbance] = []
         self.rejected = 0
         self.applied = 0
+        self._written = False  # whether the last apply() left a nonzero wrench
+        self._last = np.zeros((model.nbody, 6))
 
     def request(
         self,
@@ -94,17 +96,23 @@ class DisturbanceChannel:
     def is_active(self, now: float) -> bool:
         return any(d.start <= now < d.end for d in self.active)
 
+    def untouched_since_last_apply(self, data: mujoco.MjData) -> bool:
+        """True if ``xfrc_applied`` still holds exactly what this channel wrote last (the
+        honesty check: nobody else applies external forces)."""
+        if not self._written:
+            return not data.xfrc_applied.any()
+        return bool(np.array_equal(data.xfrc_applied, self._last))
+
     def apply(self, data: mujoco.MjData) -> None:
         """Write this step's wrenches into ``xfrc_applied`` (zero when none is active)."""
         now = float(data.time)
         self.active = [d for d in self.active if now < d.end]
-        if not self.active and not data.xfrc_applied.any():
+        if not self.active and not self._written:
             return
         data.xfrc_applied[:] = 0.0
         for d in self.active:
             if d.start <= now:
                 data.xfrc_applied[d.body] += d.wrench
-
-    def bodies_allowed(self, now: float) -> set[int]:
-        """Bodies that may carry a nonzero ``xfrc_applied`` at ``now`` (for the honesty check)."""
-        return {d.body for d in self.active if d.start <= now < d.end}
+        self._written = bool(data.xfrc_applied.any())
+        if self._written:
+            self._last[:] = data.xfrc_applied

@@ -11,9 +11,10 @@
   the optical axis (what an RGB-D camera reports); pixels with no return before the far
   limit are 0. Intrinsics K follow OpenCV (x right, y down, z forward; pixel centres at
   integer coordinates) from the camera's ``fovy`` and the image size.
-* 2D LiDAR: ``mj_multiRay`` from the ``lidar`` site in its horizontal plane, rays that hit
-  the robot's own geoms are continued past them (a real LiDAR mounted on the robot is
-  placed/masked so it does not see itself), Gaussian range noise, readings outside
+* 2D LiDAR: ``mj_multiRay`` from the ``lidar`` site in its horizontal plane against the
+  world's geom groups; a ray that still hits one of the robot's own geoms is continued past
+  it (a real LiDAR on a robot is mounted/masked so it does not see itself); Gaussian range
+  noise; readings outside
   [range_min, range_max] are reported as 0 ("no return", the LaserScan contract: the wire
   carries no inf/NaN).
 """
@@ -60,6 +61,10 @@ class LidarConfig:
     range_max: float = 12.0
     noise: float = 0.01  # m, Gaussian std on each valid range
     rate: float = 10.0  # Hz
+    # Geom groups the rays can hit: the world's (0, 1), not the robot's (2 visual,
+    # 3 collision; see the robot description). Robot geoms in a visible group are
+    # skipped anyway.
+    geomgroup: tuple[int, int, int, int, int, int] = (1, 1, 0, 0, 0, 0)
 
 
 @dataclass(frozen=True)
@@ -335,6 +340,7 @@ class Lidar:
         self._robot_geom = model.body_rootid[model.geom_bodyid] == model.body_rootid[root]
         self._geomid = np.zeros(n, np.int32)
         self._dist = np.zeros(n)
+        self._groups = np.asarray(config.geomgroup, dtype=np.uint8)
 
     def read(self, data: mujoco.MjData) -> ScanReading:
         cfg = self.config
@@ -347,7 +353,7 @@ class Lidar:
             data,
             origin,
             vec.reshape(-1),
-            None,
+            self._groups,
             1,
             -1,
             self._geomid,
@@ -369,7 +375,7 @@ class Lidar:
                     break
                 travelled += d + 1e-4
                 p = origin + travelled * vec[i]
-                d = mujoco.mj_ray(m, data, p, vec[i], None, 1, int(m.geom_bodyid[g]), hit)
+                d = mujoco.mj_ray(m, data, p, vec[i], self._groups, 1, int(m.geom_bodyid[g]), hit)
                 g = int(hit[0])
             dist[i] = travelled + d if g >= 0 and not self._robot_geom[g] else -1.0
         ranges = dist + self.rng.normal(0.0, cfg.noise, cfg.rays)
