@@ -54,6 +54,7 @@ queryable and two publications under ``<service>/action/<name>``:
 
 from __future__ import annotations
 
+import atexit
 import dataclasses
 import itertools
 import logging
@@ -61,6 +62,7 @@ import os
 import threading
 import time
 import uuid
+import weakref
 from collections import OrderedDict
 from collections.abc import Callable, Iterable
 from typing import Any, Generic, Literal, TypeVar
@@ -110,8 +112,10 @@ class BusConfig:
 
     mode: Literal["peer", "client", "router"] = "peer"
     connect: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
-    # Empty: Zenoh's default for the mode (peers: an ephemeral TCP port on all interfaces).
-    listen: tuple[str, ...] = ()
+    # Where a peer (or router) accepts links; ignored by clients. An ephemeral port on all
+    # IPv4 interfaces, so peers on other machines can link directly (Zenoh's own default,
+    # tcp/[::]:0, fails in containers without IPv6). Empty: Zenoh's default.
+    listen: tuple[str, ...] = ("tcp/0.0.0.0:0",)
     multicast_scouting: bool = False
     gossip: bool = True
     # A link silent for lease_ms is declared dead (SIGKILL closes the socket at once, so
@@ -172,7 +176,7 @@ def zenoh_config(config: BusConfig) -> zenoh.Config:
 
     put("mode", config.mode)
     put("connect/endpoints", list(config.connect))
-    if config.listen:
+    if config.listen and config.mode != "client":
         put("listen/endpoints", list(config.listen))
     put("scouting/multicast/enabled", config.multicast_scouting)
     put("scouting/gossip/enabled", config.gossip)
@@ -563,6 +567,27 @@ class LivelinessWatcher:
 # --------------------------------------------------------------------------- the bus
 
 
+_open_buses: weakref.WeakSet[Bus] = weakref.WeakSet()
+
+
+def _close_open_buses() -> None:
+    """Close buses the program forgot to close: zenoh-python runs Python callbacks on a
+    non-daemon thread, so an open session with a callback subscriber makes the interpreter
+    wait forever at exit (eclipse-zenoh 1.x, zenoh-python issue 434)."""
+    for bus in list(_open_buses):
+        bus.close()
+
+
+# Interpreter exit joins non-daemon threads *before* atexit handlers run, so a plain
+# atexit hook would come too late; threading's own pre-join hook (used by
+# concurrent.futures for the same reason) runs first. atexit stays as the fallback.
+_register_pre_join = getattr(threading, "_register_atexit", None)
+if callable(_register_pre_join):
+    _register_pre_join(_close_open_buses)
+else:  # pragma: no cover - other Python implementations
+    atexit.register(_close_open_buses)
+
+
 class Bus:
     """One Zenoh session of one process, with typed helpers; use as a context manager.
 
@@ -587,6 +612,7 @@ class Bus:
         self._lock = threading.Lock()
         self._closed = False
         self.session: zenoh.Session = open_session(self.config)
+        _open_buses.add(self)
         log.debug(
             "bus open",
             mode=self.config.mode,
@@ -680,6 +706,7 @@ class Bus:
             if self._closed:
                 return True
             self._closed = True
+            _open_buses.discard(self)
             entities = list(reversed(self._entities))
             self._entities.clear()
         budget = self.config.close_timeout_s if timeout is None else timeout

@@ -314,6 +314,12 @@ class _Heartbeat:
         self._thread.join(0.2)
 
 
+def _exit_soon(code: int, delay: float = 0.5) -> None:
+    time.sleep(delay)
+    logging.shutdown()
+    os._exit(code)
+
+
 def build_parser(cls: type[Service]) -> argparse.ArgumentParser:
     """The command-line parser every service shares (plus its own ``add_arguments``)."""
     p = argparse.ArgumentParser(
@@ -449,8 +455,11 @@ def run_service(
         if bus is not None:
             t0 = stop_requested_at[0] if stop_requested_at else time.monotonic()
             budget = max(0.2, STOP_BUDGET_S - 0.3 - (time.monotonic() - t0))
-            if not bus.close(timeout=min(budget, bus.config.close_timeout_s)):
-                log.warning("bus close did not finish in time")
+            if not bus.close(timeout=min(budget, bus.config.close_timeout_s)) and install_signals:
+                # A hung zenoh close also hangs interpreter exit (its callback thread is
+                # not a daemon): make sure this process still ends, with its exit code.
+                log.warning("bus close did not finish in time; forcing exit", code=code)
+                threading.Thread(target=_exit_soon, args=(code,), daemon=True).start()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
         elapsed = (time.monotonic() - stop_requested_at[0]) if stop_requested_at else None

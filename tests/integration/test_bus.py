@@ -188,3 +188,27 @@ def test_raw_zenoh_put_without_session_reaches_nothing_typed(relay):
             got.get(timeout=0.5)
     finally:
         other.close()
+
+
+FORGETFUL = """
+import time
+from quadmanip.common.bus import Bus, BusConfig
+from quadmanip.common.messages import Clock
+bus = Bus(BusConfig(connect=({ep!r},), listen=("tcp/127.0.0.1:0",)))
+bus.subscribe("test/forget", Clock, print)
+bus.watch_liveliness(print)
+bus.declare_alive("forgetful")
+time.sleep(0.3)
+print("leaving without close", flush=True)
+raise SystemExit(5)
+"""
+
+
+def test_a_process_that_forgets_to_close_its_bus_still_exits(zenoh_router, spawn):
+    """zenoh-python runs callbacks on a non-daemon thread, so an unclosed session used
+    to hang interpreter exit forever; the bus closes forgotten sessions first."""
+    child = spawn("-c", FORGETFUL.format(ep=zenoh_router), endpoint=zenoh_router)
+    assert child.wait_for("leaving without close", 30), child.output()
+    t0 = time.monotonic()
+    assert child.wait(5) == 5, child.output()
+    assert time.monotonic() - t0 < 3.0
