@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import mujoco
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from quadmanip.common import robot_description as rd
 from quadmanip.sim.scenarios import (
+    CLEARANCE,
     DROP_GAP,
     N_OBJECTS,
     generate,
@@ -19,6 +23,8 @@ from quadmanip.sim.scenarios import (
 from quadmanip.sim.world import build_world, load_catalogue
 
 pytestmark = pytest.mark.unit
+
+_SURFACES = build_world(None, robot=False).surfaces
 
 # Table 4, translated by hand to catalogue names ("driver" = screwdriver, "cracker" =
 # cracker box, "sugar" = sugar box, "tomato soup" = tomato soup can).
@@ -126,3 +132,20 @@ def test_yaw_only_orientations():
         w, x, y, z = p.quat
         assert x == 0.0 and y == 0.0
         assert math.isclose(w * w + z * z, 1.0)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(min_value=0, max_value=2**31 - 1))
+def test_any_seed_gives_spaced_objects_on_their_surfaces(seed):
+    """For any seed, footprints never overlap and every object lies fully on its surface."""
+    cat = load_catalogue()
+    scenario = generate(seed, verify=False)
+    surfaces = {s.name: s for s in _SURFACES}
+    for p in scenario.objects:
+        s, r = surfaces[p.surface], cat.objects[p.name].footprint_radius
+        assert s.min[0] + r <= p.position[0] + 1e-9 and p.position[0] - 1e-9 <= s.max[0] - r
+        assert s.min[1] + r <= p.position[1] + 1e-9 and p.position[1] - 1e-9 <= s.max[1] - r
+    for a, b in itertools.combinations(scenario.objects, 2):
+        ra, rb = cat.objects[a.name].footprint_radius, cat.objects[b.name].footprint_radius
+        gap = math.dist(a.position[:2], b.position[:2]) - ra - rb
+        assert gap >= CLEARANCE - 1e-9, (a.name, b.name, gap)
