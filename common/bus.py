@@ -651,12 +651,31 @@ class Bus:
         *,
         latest_only: bool = False,
     ) -> TypedSubscriber[M]:
-        """Subscribe with a callback (runs on a Zenoh thread, or a worker if latest_only)."""
+        """Subscribe with a callback; ``topic`` may hold Zenoh wildcards (``*/heartbeat``).
+
+        zenoh-python gives each subscriber its own callback thread, so subscribers never
+        block each other; but samples of one subscriber queue up behind its slow callback.
+        Use ``latest_only=True`` for sensor streams and for any callback that does real
+        work: older samples are then dropped instead of queued.
+        """
         return self._track(TypedSubscriber(self, self.key(topic), msg_type, callback, latest_only))
 
     def latest(self, topic: str, msg_type: type[M]) -> LatestCache[M]:
         """A latest-only cache of ``topic``: ``cache.get()`` returns the newest message."""
         return self._track(LatestCache(self, self.key(topic), msg_type))
+
+    def follow_clock(self, topic: str = "sim/clock") -> LatestCache[Any]:
+        """Stamp this bus's own messages with robot time from ``topic`` (sim time in
+        simulation): :attr:`clock` then returns the newest ``Clock`` stamp (0.0 until the
+        first one). On hardware, where robot time is wall time, simply don't call it."""
+        cache = self.latest(topic, _messages().Clock)
+
+        def robot_time() -> float:
+            msg = cache.get()
+            return 0.0 if msg is None else float(msg.stamp)
+
+        self.clock = robot_time
+        return cache
 
     # liveliness ------------------------------------------------------------------
     def declare_alive(self, service: str) -> zenoh.LivelinessToken:

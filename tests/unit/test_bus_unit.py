@@ -288,3 +288,15 @@ def test_set_values_parse_as_toml():
         "f": "q",
         "g": [1, 2],
     }
+
+
+def test_follow_clock_stamps_with_robot_time(bus):
+    assert bus.clock() > 1e9  # wall time until told otherwise
+    cache = bus.follow_clock("x/clock")
+    assert bus.clock() == 0.0
+    pub = bus.publisher("x/clock", Clock, kind="sensor")
+    pub.publish(Clock(stamp=12.25))
+    deadline = time.monotonic() + 1.0
+    while cache.get() is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert bus.clock() == 12.25
