@@ -29,6 +29,7 @@ from quadmanip.paths import CONFIG_DIR
 __all__ = [
     "ConfigError",
     "config_path",
+    "expand_overrides",
     "from_dict",
     "load_config",
     "load_toml",
@@ -88,7 +89,7 @@ def load_config(
         data = data[section]
         source = f"{source} [{section}]"
     if overrides:
-        data = _merge(data, _expand_dotted(overrides))
+        data = _merge(data, expand_overrides(overrides))
         source = f"{source} (+overrides)"
     return from_dict(cls, data, source=source)
 
@@ -116,7 +117,8 @@ def to_dict(obj: Any) -> Any:
 # --------------------------------------------------------------------------- internals
 
 
-def _expand_dotted(overrides: Mapping[str, Any]) -> dict[str, Any]:
+def expand_overrides(overrides: Mapping[str, Any]) -> dict[str, Any]:
+    """``{"a.b": 1}`` → ``{"a": {"b": 1}}`` (nested mappings are expanded too)."""
     out: dict[str, Any] = {}
     for key, value in overrides.items():
         parts = str(key).split(".")
@@ -126,7 +128,7 @@ def _expand_dotted(overrides: Mapping[str, Any]) -> dict[str, Any]:
             if not isinstance(node, dict):
                 raise ConfigError(f"override {key!r} conflicts with another override")
         if isinstance(value, Mapping):
-            value = _expand_dotted(value)
+            value = expand_overrides(value)
         node[parts[-1]] = value
     return out
 
