@@ -1,16 +1,18 @@
 """``build_world``: house + scenario objects + robot as one MuJoCo model.
 
-The robot description is attached (not copied by hand) from
-``configs/robot/quadmanip_dog.xml`` so MuJoCo and pinocchio keep one source of truth; its
-physics options (1 kHz timestep, implicit-fast integrator, elliptic cones, impratio) become
-the world's. The scenario's object poses are the model's initial poses and are applied once
+The world is built *into* the robot description's own spec
+(``configs/robot/quadmanip_dog.xml``, loaded as is, never copied by hand), so MuJoCo and
+pinocchio keep one source of truth, the robot keeps its names, defaults, keyframes and
+physics options (1 kHz timestep, implicit-fast integrator, elliptic cones, impratio), and
+its free joint stays at qpos[0:7]. The base body and the keyframes are moved to the start
+pose in the house, so ``mj_resetDataKeyframe(model, data, model.key("home").id)`` stands
+the robot at its start with the objects at their placements. The scenario's object poses are the model's initial poses and are applied once
 by :meth:`World.initial_data`; after that only physics moves anything.
 """
 
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -109,6 +111,30 @@ def _copy_physics_options(dst: mujoco.MjSpec, src: mujoco.MjSpec) -> None:
     dst.option.impratio = src.option.impratio
 
 
+def _place_robot(spec: mujoco.MjSpec, x: float, y: float, yaw: float, key: str | None) -> None:
+    """Move the robot's base body (free-joint reference pose) and every keyframe's base pose
+    to the start position and heading in the house."""
+    rm = rd.load_mujoco_model()
+    adr = rd.free_joint_qpos_index(rm)
+    yaw_q = np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
+
+    def turned(q: np.ndarray) -> list[float]:
+        out = np.zeros(4)
+        mujoco.mju_mulQuat(out, yaw_q, np.asarray(q, float))
+        return list(out)
+
+    ref = rm.key(key).qpos if key else rm.qpos0
+    base = spec.body(rd.BASE_BODY)
+    base.pos = [x, y, float(ref[adr + 2])]
+    base.quat = turned(ref[adr + 3 : adr + 7])
+    for k in spec.keys:
+        q = np.array(k.qpos, float)
+        if q.size >= adr + 7:
+            q[adr : adr + 2] = [x, y]
+            q[adr + 3 : adr + 7] = turned(q[adr + 3 : adr + 7])
+            k.qpos = list(q)
+
+
 def _start_keyframe(house: HouseConfig) -> tuple[str | None, dict[str, float]]:
     """The first configured start keyframe the robot has, as {joint: value} (free joint
     entries as ``base_free[i]``)."""
@@ -142,10 +168,18 @@ def build_world(
     """
     house = house or load_house()
     catalogue = catalogue or load_catalogue()
-    spec = mujoco.MjSpec()
+    x, y = house.robot_start.position
+    yaw = math.radians(house.robot_start.yaw)
+    key_name, robot_qpos = (None, {})
+    if robot:
+        key_name, robot_qpos = _start_keyframe(house)
+        spec = rd.robot_spec()
+        spec.option.timestep = TIMESTEP
+        _place_robot(spec, x, y, yaw, key_name)
+    else:
+        spec = mujoco.MjSpec()
+        _copy_physics_options(spec, rd.robot_spec())
     spec.modelname = "quadmanip_house"
-    robot_spec = rd.robot_spec()
-    _copy_physics_options(spec, robot_spec)
     layout = build_house(spec, house)
 
     names: list[str] = []
@@ -161,20 +195,7 @@ def build_world(
             )
             names.append(p.name)
 
-    x, y = house.robot_start.position
-    yaw = math.radians(house.robot_start.yaw)
-    key_name, robot_qpos = (None, {})
-    if robot:
-        key_name, robot_qpos = _start_keyframe(house)
-        frame = spec.worldbody.add_frame(
-            name="robot_start", pos=[x, y, 0.0], quat=[math.cos(yaw / 2), 0, 0, math.sin(yaw / 2)]
-        )
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            frame.attach_body(robot_spec.body(rd.BASE_BODY), "", "")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        model = spec.compile()
+    model = spec.compile()
     body_ids = {n: model.body(f"obj/{n}").id for n in names}
     return World(
         model=model,

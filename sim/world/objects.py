@@ -312,6 +312,6 @@ def add_object(
             condim=obj.condim,
             solref=list(contact.solref),
             solmix=contact.solmix,
-            group=2,
+            group=1,  # world geoms use groups 0/1; the robot keeps 2 (visual) and 3
         )
     return body
