@@ -58,6 +58,11 @@ class World:
     start_keyframe: str | None = None
     _robot_qpos: dict[str, float] = field(default_factory=dict, repr=False)
 
+    @property
+    def table_surfaces(self) -> tuple[Surface, ...]:
+        """The table tops objects may lie on (the deposit table is not one)."""
+        return tuple(s for s in self.surfaces if s.kind == "table")
+
     def object_body(self, name: str) -> str:
         """MuJoCo body name of a catalogue object (``obj/<name>``)."""
         return f"obj/{name}"

@@ -147,3 +147,26 @@ def test_house_is_cheap_to_render_and_collide(world):
     assert static and all(int(m.geom_type[g]) in allowed for g in static)
     assert all(not m.light_castshadow[i] for i in range(m.nlight))
     assert max(m.tex_width) <= 512
+
+
+def test_nothing_but_physics_holds_objects_or_drawers():
+    """Honest simulation: no mocap body, no weld or connect constraint on the house, the
+    objects or the drawers; objects are free bodies and drawers are plain slide joints."""
+    from quadmanip.sim.scenarios import get_scenario
+
+    world = build_world(get_scenario("paper-1"), robot=True)
+    m = world.model
+    assert m.nmocap == 0
+    robot_root = m.body(rd.BASE_BODY).id
+    for e in range(m.neq):
+        assert m.eq_type[e] not in (mujoco.mjtEq.mjEQ_CONNECT, mujoco.mjtEq.mjEQ_WELD)
+        if m.eq_type[e] == mujoco.mjtEq.mjEQ_JOINT:  # e.g. the robot's finger coupling
+            for j in (m.eq_obj1id[e], m.eq_obj2id[e]):
+                if j >= 0:
+                    assert m.body_rootid[m.jnt_bodyid[j]] == robot_root
+    for name, bid in world.object_body_ids.items():
+        assert m.body_parentid[bid] == 0, name
+        assert m.body_jntnum[bid] == 1
+        assert m.jnt_type[m.body_jntadr[bid]] == mujoco.mjtJoint.mjJNT_FREE
+        assert m.body_gravcomp[bid] == 0
+    assert len(world.table_surfaces) == 2
