@@ -36,6 +36,7 @@ import numpy as np
 from quadmanip.services.manipulation.arm_kinematics import (
     ArmGeometry,
     ArmTarget,
+    fk_tcp,
     solve_ik,
     target_from_base_pose,
 )
@@ -250,7 +251,11 @@ class GraspPrimitive(Primitive):
         self.stage("grasp: lift", 0.75)
         obs = self._last_obs
         assert obs is not None
-        lift = ArmTarget(plan.lift.x, plan.lift.z, plan.lift.pitch, float(obs.q_arm[3]))
+        # lift relative to where the fingers actually closed (contact may stop the descent)
+        here = fk_tcp(self.geom, obs.q_arm)
+        lift = ArmTarget(here.x, here.z + g.lift_height, plan.lift.pitch, float(obs.q_arm[3]))
+        if not solve_ik(self.geom, lift, q_ref=obs.q_arm, roll_symmetric=False).ok:
+            lift = ArmTarget(plan.lift.x, plan.lift.z, plan.lift.pitch, float(obs.q_arm[3]))
         yield from self._line_to(lift)
         yield from self.wait(g.verify_time)
         if not self.monitor.holding:

@@ -351,8 +351,8 @@ def grasp_from_ground_truth(
     """Grasp pose for object ``name`` from its true pose (TEST HARNESS ONLY).
 
     Vertical: above the largest part's centre, fingers across its narrower horizontal side,
-    tool centre 2.5 cm below the object's top but at least 2.1 cm above the supporting
-    surface (the fingertips reach 2 cm beyond the tool centre). Vessels are grasped at the
+    tool centre 3 cm below the object's top (the palm is 5 cm above the tool centre) but at
+    least 2.1 cm above the supporting surface (the fingertips reach 2 cm beyond it). Vessels are grasped at the
     rim, fingers across the wall, on the side nearest the robot away from a handle.
     Horizontal: at the object's centre (at most 5 cm above the surface), fingers across the
     object's extent along the body y axis.
@@ -403,7 +403,7 @@ def grasp_from_ground_truth(
             yaw, width = obj_yaw, 2 * half[1]
         else:
             yaw, width = obj_yaw + math.pi / 2, 2 * half[0]
-        pt[2] = max(surface_z + 0.021, min(pt[2], top - 0.025))
+        pt[2] = max(surface_z + 0.021, top - 0.03)
         return GraspSpec(h.world_to_base(pt), "vertical", yaw - base_yaw, float(width))
     # horizontal: extent across the body's y axis
     ext = np.abs(rot) @ (0.5 * np.asarray(spec.size))

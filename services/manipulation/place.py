@@ -1,0 +1,155 @@
+"""Placing the held object into a deposit region from above (box, tray, pencil case, drawer).
+
+Goal: the region's opening centre ``position`` (body frame; z = the rim, the highest point
+the object must clear) and the object's ``hang`` below the tool centre (known from the
+grasp). Sequence: moveCOM sideways so the point lies in the arm plane; joint move to a
+transit pose ``transit_clearance`` above the release pose; straight line down to the
+release pose (object bottom ``place_release_z`` above the rim); open; straight line up
+``retract_height``; verify empty by closing the fingers - they must meet (a stuck object
+stalls them); restore the body pose.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from quadmanip.services.manipulation.arm_kinematics import (
+    ArmGeometry,
+    ArmTarget,
+    fk_tcp,
+    solve_ik,
+    target_from_base_pose,
+)
+from quadmanip.services.manipulation.config import ManipulationConfig
+from quadmanip.services.manipulation.grasp import GraspRejected, _line, _reachable
+from quadmanip.services.manipulation.gripper import GraspMonitor, GripState
+from quadmanip.services.manipulation.primitive import (
+    BodyPoseRequest,
+    Primitive,
+    PrimitiveFailed,
+    Script,
+)
+from quadmanip.services.manipulation.trajectory import plan_cartesian_line
+
+__all__ = ["PlacePlan", "PlacePrimitive", "plan_place"]
+
+TRANSIT_CLEARANCE = 0.05
+
+
+class PlacePlan:
+    """Checked poses of a place: body offset, transit, release and retract targets."""
+
+    def __init__(
+        self, body: BodyPoseRequest, transit: ArmTarget, release: ArmTarget, retract: ArmTarget
+    ) -> None:
+        self.body = body
+        self.transit = transit
+        self.release = release
+        self.retract = retract
+
+
+def plan_place(
+    geom: ArmGeometry,
+    cfg: ManipulationConfig,
+    position_base: np.ndarray,
+    q_now: np.ndarray,
+    hang: float,
+    body: BodyPoseRequest | None = None,
+) -> PlacePlan:
+    """Computes and checks the place poses; raises :class:`GraspRejected` with a reason."""
+    g = cfg.grasp
+    body = body or BodyPoseRequest()
+    p = np.asarray(position_base, dtype=float)
+    if p.shape != (3,) or not np.all(np.isfinite(p)) or not math.isfinite(hang) or hang < 0:
+        raise GraspRejected("invalid_goal", "position must be 3 finite numbers, hang >= 0")
+    target, lateral = target_from_base_pose(geom, p, 0.0, 0.0)
+    y_total = body.y_offset + lateral
+    if abs(y_total) > g.max_lateral_shift + 1e-9:
+        raise GraspRejected(
+            "lateral_out_of_range",
+            f"needs a body shift of {y_total:+.3f} m (limit {g.max_lateral_shift:.3f}); "
+            "reposition the robot",
+        )
+    now = fk_tcp(geom, q_now)
+    pitch, roll = now.pitch, float(q_now[3])
+    z_rel = target.z + hang + g.place_release_z
+    why = ""
+    # keep the grasp's pitch if possible; tilt the tool forward (up to 0.6 rad) for far regions
+    for tilt in np.arange(0.0, 0.61, 0.1):
+        pt = pitch - tilt if pitch > 0.3 else pitch
+        release = ArmTarget(target.x, z_rel, pt, roll)
+        transit = ArmTarget(target.x, z_rel + TRANSIT_CLEARANCE, pt, roll)
+        retract = ArmTarget(target.x, z_rel + g.retract_height, pt, roll)
+        why = _reachable(geom, [*_line(transit, release, 6), *_line(release, retract, 6)], q_now)
+        if not why:
+            off = BodyPoseRequest(body.x_offset, y_total, body.z_offset)
+            return PlacePlan(off, transit, release, retract)
+        if pitch <= 0.3:
+            break
+    raise GraspRejected("unreachable", f"place pose: {why}")
+
+
+class PlacePrimitive(Primitive):
+    """Runs a :class:`PlacePlan`: transit, lower, release, retract, verify empty."""
+
+    name = "place"
+
+    def __init__(
+        self,
+        geom: ArmGeometry,
+        cfg: ManipulationConfig,
+        plan: PlacePlan,
+        monitor: GraspMonitor | None = None,
+        body: BodyPoseRequest | None = None,
+    ) -> None:
+        super().__init__(geom, cfg, monitor, body)
+        self.plan = plan
+
+    def _line_to(self, goal: ArmTarget) -> Script:
+        obs = self._last_obs
+        assert obs is not None
+        m = self.cfg.motion
+        traj = plan_cartesian_line(
+            self.geom,
+            obs.q_arm,
+            goal,
+            obs.t,
+            self.limits,
+            linear_speed=m.linear_speed,
+            angular_speed=m.angular_speed,
+            dt=m.dt,
+        )
+        yield from self.run_trajectory(traj)
+
+    def script(self) -> Script:
+        """Transit above the region, lower, open, retract, verify the fingers are empty."""
+        plan = self.plan
+        self.stage("place: moveCOM", 0.05)
+        yield []
+        b = plan.body
+        yield from self.move_body(b.x_offset, b.y_offset, b.z_offset)
+        self.stage("place: transit above the region", 0.2)
+        obs = self._last_obs
+        assert obs is not None
+        sol = solve_ik(self.geom, plan.transit, q_ref=obs.q_arm, roll_symmetric=False)
+        if not sol.ok:
+            raise PrimitiveFailed(f"unreachable: {sol.detail}")
+        # rise first so the object clears whatever is between it and the region
+        here = fk_tcp(self.geom, obs.q_arm)
+        up = ArmTarget(here.x, max(here.z, plan.transit.z), here.pitch, float(obs.q_arm[3]))
+        if solve_ik(self.geom, up, q_ref=obs.q_arm, roll_symmetric=False).ok:
+            yield from self._line_to(up)
+        yield from self._line_to(plan.transit)
+        self.stage("place: lower", 0.45)
+        yield from self._line_to(plan.release)
+        self.stage("place: release", 0.6)
+        yield from self.open_gripper(settle=0.5)
+        self.stage("place: retract", 0.75)
+        yield from self._line_to(plan.retract)
+        self.stage("place: verify empty", 0.9)
+        yield from self.close_gripper()
+        if self.monitor.state is GripState.HOLDING:
+            raise PrimitiveFailed("object_stuck: the fingers still hold something after release")
+        yield from self.open_gripper(settle=0.3)
+        yield from self.move_body(0.0, 0.0, 0.0)
