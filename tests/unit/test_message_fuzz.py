@@ -394,3 +394,54 @@ def test_nested_envelopes_bounded() -> None:
     for i in range(MAX_NESTING):
         ok = m.ActionGoal(stamp=0.0, goal_id=str(i), action="a", goal=ok)
     assert decode(encode(ok)) == ok
+
+
+WIRE_DTYPES = ["<f8", "<f4", ">f8", "|u1", "|i1", "<i4", "<i8", "<u2", "|b1", "<c16", "|O", "x"]
+
+
+@FUZZ
+@given(
+    cls=st.sampled_from([c for c in ALL_TYPES if any(s.kind == "array" for s in field_specs(c))]),
+    dtype=st.sampled_from(WIRE_DTYPES),
+    shape=st.lists(st.integers(-2, 6) | st.just(1 << 40), max_size=4),
+    data=st.data(),
+)
+def test_array_dtype_and_shape_mismatches(
+    cls: type[Message], dtype: str, shape: list[int], data: st.DataObject
+) -> None:
+    """Any wire dtype/shape for an array field: accepted only if it is the declared dtype,
+    a declared-compatible shape and the byte count matches; otherwise MessageError."""
+    msg = m.example(cls)
+    spec = data.draw(st.sampled_from([s for s in field_specs(cls) if s.kind == "array"]))
+    assert spec.array is not None
+    n = math.prod(shape) if all(s >= 0 for s in shape) else 0
+    itemsize = 1 if dtype in ("|u1", "|i1", "|b1", "x", "|O") else int(dtype[-1:] or 1)
+    raw = bytes(min(max(n, 0), 64) * itemsize)
+    obj = msgpack.unpackb(encode(msg))
+    obj[3][spec.name] = [dtype, shape, raw]
+    declared_ok = (
+        dtype == spec.array.dtype_str
+        and len(shape) == len(spec.array.shape)
+        and all(w is None or w == s for s, w in zip(shape, spec.array.shape, strict=True))
+        and all(s >= 0 for s in shape)
+        and len(raw) == n * spec.array.dtype.itemsize
+    )
+    try:
+        back = decode(msgpack.packb(obj, use_bin_type=True), cls)
+    except MessageError:
+        return
+    # Accepted: it must have been a well-formed encoding of the declared array.
+    assert declared_ok
+    assert getattr(back, spec.name).shape == tuple(shape)
+
+
+@pytest.mark.parametrize("cls", ALL_TYPES, ids=lambda c: c.__name__)
+def test_newer_minor_with_extra_fields_accepted_for_every_type(cls: type[Message]) -> None:
+    msg = m.example(cls)
+    obj = msgpack.unpackb(encode(msg))
+    obj[2] += 1
+    obj[3]["added_in_next_minor"] = {"anything": [1, 2.5, "x"]}
+    assert decode(msgpack.packb(obj, use_bin_type=True), cls) == msg
+    obj[1] += 1  # ... but a new major is refused
+    with pytest.raises(MessageError, match="major"):
+        decode(msgpack.packb(obj, use_bin_type=True), cls)
