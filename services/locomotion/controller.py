@@ -156,6 +156,15 @@ class CommandError(ValueError):
     """A command that is rejected (non-finite, out of range, unknown mode)."""
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a × b for a (3,) and b (n, 3)."""
+    out = np.empty_like(b)
+    out[:, 0] = a[1] * b[:, 2] - a[2] * b[:, 1]
+    out[:, 1] = a[2] * b[:, 0] - a[0] * b[:, 2]
+    out[:, 2] = a[0] * b[:, 1] - a[1] * b[:, 0]
+    return out
+
+
 class LocomotionController:
     """Modes + estimator + gait + MPC + swing legs (see module doc)."""
 
@@ -443,35 +452,35 @@ class LocomotionController:
         )  # fmt: skip
         # Leg torques.
         g = cfg.gains
-        tau = np.zeros(12)
-        kd = np.zeros(12)
-        q_des = q16[:12].copy()
-        dq_des = np.zeros(12)
         f_body = (r.T @ self._forces_world.T).T
         tau_st = self.kin.leg_torques(f_body)
         kp_c = np.asarray(cfg.swing.kp_cartesian)
         kd_c = np.asarray(cfg.swing.kd_cartesian)
         w_b = self.est.omega_body
-        for i in range(4):
-            sl = slice(3 * i, 3 * i + 3)
-            if contact[i]:
-                tau[sl] = tau_st[sl]
-                kd[sl] = g.kd_stance
-                # Stance feet move with −(v + ω×r) relative to the base: damp around that.
-                v_rel_b = -(r.T @ vel) - np.cross(w_b, self.kin.foot_pos[i])
-                dq_des[sl] = np.linalg.lstsq(self.kin.foot_jac[i], v_rel_b, rcond=None)[0]
-            else:
-                p_des_w, v_des_w = swing_profile(
-                    self._liftoff[i], self._td_target[i], progress[i], self.gait.params.t_swing,
-                    self.gait.params.foot_height,
-                )  # fmt: skip
-                p_des_b = r.T @ (p_des_w - pos)
-                v_des_b = r.T @ (v_des_w - vel) - np.cross(w_b, p_des_b)
-                v_foot_b = self.kin.foot_velocities(dq16[:12])[i]
-                f = kp_c * (p_des_b - self.kin.foot_pos[i]) + kd_c * (v_des_b - v_foot_b)
-                tau[sl] = self.kin.foot_jac[i].T @ f
-                kd[sl] = g.kd_swing
-                dq_des[sl] = np.linalg.lstsq(self.kin.foot_jac[i], v_des_b, rcond=None)[0]
+        # Desired foot velocities relative to the base (base frame), all legs at once:
+        # stance feet stay put in the world, so they move by −(v + ω × r) relative to the base.
+        v_b = r.T @ vel
+        v_rel = -v_b[None, :] - _cross(w_b, self.kin.foot_pos)
+        swing_force = np.zeros((4, 3))
+        for i in np.flatnonzero(~contact):
+            p_des_w, v_des_w = swing_profile(
+                self._liftoff[i], self._td_target[i], progress[i], self.gait.params.t_swing,
+                self.gait.params.foot_height,
+            )  # fmt: skip
+            p_des_b = r.T @ (p_des_w - pos)
+            v_rel[i] = r.T @ (v_des_w - vel) - _cross(w_b, p_des_b[None, :])[0]
+            swing_force[i] = kp_c * (p_des_b - self.kin.foot_pos[i]) + kd_c * (
+                v_rel[i] - foot_vel[i]
+            )
+        tau_sw = self.kin.cartesian_torques(swing_force)
+        st = np.repeat(contact, 3)
+        tau = np.where(st, tau_st, tau_sw)
+        kd = np.where(st, g.kd_stance, g.kd_swing)
+        # Joint velocities that realise those foot velocities (J is 3×3 per leg).
+        dq_des = np.linalg.solve(
+            self.kin.foot_jac + 1e-9 * np.eye(3)[None], v_rel[:, :, None]
+        ).reshape(12)
+        q_des = q16[:12].copy()
         self.debug.gait_phase = np.where(progress >= 0, progress, 0.0)
         self.debug.contact = contact.copy()
         self.debug.foot_forces = self._forces_world.copy()
@@ -499,7 +508,7 @@ class LocomotionController:
         r = self.est.R
         com_off_w = r @ bi.com
         com = pos + com_off_w
-        com_vel = vel + np.cross(omega_w, com_off_w)
+        com_vel = vel + _cross(omega_w, com_off_w[None, :])[0]
         x_ref = self.ref.plan(rpy, pos, omega_w, vel, rp_des, n, p.dt)
         x_ref[:, 3:6] += com_off_w  # base reference → COM reference
         x0 = np.concatenate([rpy, com, omega_w, com_vel])

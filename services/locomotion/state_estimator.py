@@ -59,6 +59,15 @@ def rot_to_rpy(r: np.ndarray) -> np.ndarray:
     return np.array([roll, pitch, yaw])
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a × b for a (3,) and b (n, 3) (np.cross is slow for tiny arrays)."""
+    out = np.empty_like(b)
+    out[:, 0] = a[1] * b[:, 2] - a[2] * b[:, 1]
+    out[:, 1] = a[2] * b[:, 0] - a[0] * b[:, 2]
+    out[:, 2] = a[0] * b[:, 1] - a[1] * b[:, 0]
+    return out
+
+
 class StateEstimator:
     """Linear Kalman filter for base position and velocity (see module doc)."""
 
@@ -69,6 +78,15 @@ class StateEstimator:
         self.R = np.eye(3)
         self.omega_body = np.zeros(3)
         self.initialised = False
+        # Constant measurement matrix: [p_f - p (12); v (12); p_f,z (4)] from x.
+        h = np.zeros((28, 18))
+        for i in range(4):
+            h[3 * i : 3 * i + 3, 0:3] = -np.eye(3)
+            h[3 * i : 3 * i + 3, 6 + 3 * i : 9 + 3 * i] = np.eye(3)
+            h[12 + 3 * i : 15 + 3 * i, 3:6] = np.eye(3)
+            h[24 + i, 8 + 3 * i] = 1.0
+        self._h = h
+        self._eye18 = np.eye(18)
 
     def reset(self, quat: np.ndarray, foot_rel_body: np.ndarray, height: float | None = None) -> None:
         """Start at the odom origin (x, y = 0) with the base height from leg kinematics."""
@@ -119,27 +137,23 @@ class StateEstimator:
         x = self.x
         x[0:3] += x[3:6] * dt + 0.5 * a_world * dt * dt
         x[3:6] += a_world * dt
-        f = np.eye(18)
-        f[0:3, 3:6] = np.eye(3) * dt
         stance = np.clip(np.asarray(stance, dtype=float), 0.0, 1.0)
         q_diag = np.empty(18)
         q_diag[0:3] = pr.position_process_noise**2
         q_diag[3:6] = (pr.accel_noise * dt) ** 2
         foot_q = np.where(stance > 0.5, pr.foot_process_noise, pr.foot_swing_noise) ** 2
         q_diag[6:18] = np.repeat(foot_q, 3)
-        p_mat = f @ self.P @ f.T
+        # F P Fᵀ for F = I + dt·E(p ← v), written out (F is identity but for one block).
+        p_mat = self.P.copy()
+        p_mat[0:3, :] += dt * p_mat[3:6, :]
+        p_mat[:, 0:3] += dt * p_mat[:, 3:6]
         p_mat[np.diag_indices(18)] += q_diag
         # Measurements.
         rel_w = (r @ np.asarray(foot_rel_body, dtype=float).T).T  # (4, 3)
-        wxr = np.cross(self.omega_body, foot_rel_body)
+        wxr = _cross(self.omega_body, np.asarray(foot_rel_body, dtype=float))
         vel_w = -(r @ (wxr + np.asarray(foot_vel_body, dtype=float)).T).T  # base vel per foot
         y = np.concatenate([rel_w.reshape(-1), vel_w.reshape(-1), np.full(4, pr.foot_radius)])
-        h = np.zeros((28, 18))
-        for i in range(4):
-            h[3 * i : 3 * i + 3, 0:3] = -np.eye(3)
-            h[3 * i : 3 * i + 3, 6 + 3 * i : 9 + 3 * i] = np.eye(3)
-            h[12 + 3 * i : 15 + 3 * i, 3:6] = np.eye(3)
-            h[24 + i, 8 + 3 * i] = 1.0
+        h = self._h
         trust = 1.0 + (1.0 - stance) * (pr.swing_factor - 1.0)
         r_diag = np.concatenate(
             [
@@ -152,5 +166,5 @@ class StateEstimator:
         s[np.diag_indices(28)] += r_diag
         k = np.linalg.solve(s, h @ p_mat).T
         self.x = x + k @ (y - h @ x)
-        self.P = (np.eye(18) - k @ h) @ p_mat
+        self.P = (self._eye18 - k @ h) @ p_mat
         self.P = 0.5 * (self.P + self.P.T)
