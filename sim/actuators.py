@@ -327,21 +327,20 @@ class ActuatorLayer:
         tau_ff: np.ndarray,
     ) -> bool:
         """Accept a leg command received at sim time ``now``; False if rejected."""
-        arrays = []
-        for name, a in (("q_des", q_des), ("dq_des", dq_des), ("kp", kp), ("kd", kd)):
-            arr = np.asarray(a, dtype=float)
-            if arr.shape != (N_LEG,):
-                return self._reject("leg", f"{name} shape {arr.shape} != (12,)")
-            arrays.append(arr)
-        ff = np.asarray(tau_ff, dtype=float)
-        if ff.shape != (N_LEG,):
-            return self._reject("leg", f"tau_ff shape {ff.shape} != (12,)")
-        arrays.append(ff)
-        if not all(np.all(np.isfinite(a)) for a in arrays):
+        names = ("q_des", "dq_des", "kp", "kd", "tau_ff")
+        arrays = [q_des, dq_des, kp, kd, tau_ff]
+        for i, a in enumerate(arrays):
+            if np.shape(a) != (N_LEG,):
+                return self._reject("leg", f"{names[i]} shape {np.shape(a)} != (12,)")
+        try:
+            cmd = np.array(arrays, dtype=float)  # (5, 12), a private copy
+        except (TypeError, ValueError):
+            return self._reject("leg", "not numbers")
+        if not np.isfinite(cmd).all():
             return self._reject("leg", "non-finite value")
-        if np.any(arrays[2] < 0) or np.any(arrays[3] < 0):
+        if (cmd[2:4] < 0).any():
             return self._reject("leg", "negative gain")
-        self._leg_cmd = tuple(a.copy() for a in arrays)
+        self._leg_cmd = tuple(cmd)
         self._leg_cmd_time = float(now)
         return True
 

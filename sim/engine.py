@@ -70,7 +70,7 @@ class NodeConfig:
     realtime_factor: float = 1.0  # cap in realtime mode
     heartbeat_rate: float = 1.0  # Hz (wall time)
     lockstep_log_period: float = 1.0  # s of waiting between "waiting for controller" lines
-    clock_rate: float = 500.0  # Hz of sim/clock (sim time)
+    clock_rate: float = 100.0  # Hz of sim/clock (sim time); LowState stamps every tick
 
 
 @dataclass(frozen=True)
