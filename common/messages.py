@@ -267,6 +267,10 @@ class LaserScan(Message):
     range_max: float
     ranges: np.ndarray = array("f4", (None,), nonneg=True, max_elements=1 << 16)
 
+    def _check(self) -> None:
+        if not 0.0 <= self.range_min <= self.range_max:
+            raise MessageError("LaserScan: need 0 <= range_min <= range_max")
+
 
 @message("qm.Odometry", (1, 0))
 class Odometry(Message):
@@ -448,6 +452,10 @@ class GroundTruthPoses(Message):
                 f"GroundTruthPoses: {n} names but {self.positions.shape[0]} positions and "
                 f"{self.orientations.shape[0]} orientations"
             )
+        if n:
+            norm2 = np.einsum("ij,ij->i", self.orientations, self.orientations)
+            if not bool(np.all((norm2 >= 0.81) & (norm2 <= 1.21))):
+                raise MessageError("GroundTruthPoses.orientations must be unit quaternions")
 
 
 @message("qm.GroundTruthContacts", (1, 0))

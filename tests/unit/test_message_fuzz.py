@@ -195,6 +195,19 @@ def judge(draw: st.DrawFn) -> m.JudgeReport:
     )
 
 
+@st.composite
+def laser_scan(draw: st.DrawFn) -> m.LaserScan:
+    lo = draw(st.floats(0.0, 1e6))
+    return m.LaserScan(
+        stamp=draw(finite64),
+        angle_min=draw(finite64),
+        angle_increment=draw(finite64),
+        range_min=lo,
+        range_max=lo + draw(st.floats(0.0, 1e6)),
+        ranges=draw(array_strategy(_spec(m.LaserScan, "ranges"))),
+    )
+
+
 unit_vec = st.lists(st.floats(-1, 1), min_size=3, max_size=3).map(
     lambda v: np.array(v) / np.linalg.norm(v) if np.linalg.norm(v) > 1e-3 else np.array([1.0, 0, 0])
 )
@@ -212,7 +225,7 @@ STRATEGIES: dict[type[Message], st.SearchStrategy] = {
     m.BodyPoseCommand: auto(m.BodyPoseCommand),
     m.LocomotionMode: auto(m.LocomotionMode),
     m.RgbdImage: rgbd(),
-    m.LaserScan: auto(m.LaserScan),
+    m.LaserScan: laser_scan(),
     m.Odometry: auto(m.Odometry, orientation=unit_quat()),
     m.LocomotionDebug: auto(m.LocomotionDebug),
     m.Heartbeat: auto(m.Heartbeat),

@@ -178,6 +178,12 @@ def test_cross_field_checks() -> None:
     with pytest.raises(MessageError, match="names"):
         m.GroundTruthPoses(stamp=0, names=["a", "b"], positions=np.zeros((1, 3)),
                            orientations=[[1, 0, 0, 0]])  # fmt: skip
+    with pytest.raises(MessageError, match="unit quaternions"):
+        m.GroundTruthPoses(stamp=0, names=["a"], positions=np.zeros((1, 3)),
+                           orientations=[[0, 0, 0, 0]])  # fmt: skip
+    with pytest.raises(MessageError, match="range_min"):
+        m.LaserScan(stamp=0, angle_min=0, angle_increment=0.1, range_min=5.0, range_max=1.0,
+                    ranges=[1.0])  # fmt: skip
     with pytest.raises(MessageError, match="registered message"):
         m.ActionGoal(stamp=0, goal_id="g", action="a", goal="not a message")  # type: ignore[arg-type]
     with pytest.raises(MessageError, match="JointState"):
