@@ -161,6 +161,10 @@ def _start_keyframe(house: HouseConfig) -> tuple[str | None, dict[str, float]]:
     return chosen, out
 
 
+CAMERA_NEAR_CLIP_M = 0.01
+CAMERA_FAR_CLIP_M = 30.0
+
+
 def build_world(
     scenario: Scenario | None = None,
     robot: bool = True,
@@ -201,6 +205,10 @@ def build_world(
             names.append(p.name)
 
     model = spec.compile()
+    # MuJoCo scales the clip planes by the model extent (~14 m for the house), which would
+    # put the near plane 14 cm in front of the gripper camera; set them in metres instead.
+    model.vis.map.znear = CAMERA_NEAR_CLIP_M / model.stat.extent
+    model.vis.map.zfar = CAMERA_FAR_CLIP_M / model.stat.extent
     body_ids = {n: model.body(f"obj/{n}").id for n in names}
     return World(
         model=model,
