@@ -210,7 +210,7 @@ class Message:
     __qm_enc__: ClassVar[tuple[Any, ...]] = ()
     __qm_dec__: ClassVar[tuple[Any, ...]] = ()
     __qm_names__: ClassVar[frozenset[str]] = frozenset()
-    __qm_defaults__: ClassVar[dict[str, tuple[bool, Any]]] = {}
+    __qm_defaults__: ClassVar[dict[str, tuple[bool, Any, Any]]] = {}
 
     stamp: float
 
@@ -686,11 +686,12 @@ def message(schema: str, version: tuple[int, int] = (1, 0)) -> Callable[[type[M]
         dc.__qm_dec__ = tuple((p[0], p[3]) for p in plan)
         dc.__qm_names__ = frozenset(s.name for s in specs)
         defaults = {}
+        convs = dict(dc.__qm_conv__)
         for f in dataclasses.fields(dc):
             if f.default is not dataclasses.MISSING:
-                defaults[f.name] = (False, f.default)
+                defaults[f.name] = (False, f.default, convs[f.name])
             elif f.default_factory is not dataclasses.MISSING:
-                defaults[f.name] = (True, f.default_factory)
+                defaults[f.name] = (True, f.default_factory, convs[f.name])
         dc.__qm_defaults__ = defaults
         _REGISTRY[schema] = dc
         return dc
@@ -749,7 +750,8 @@ def _decode_obj(obj: Any, expected: type[Message] | None, depth: int) -> Message
             dflt = cls.__qm_defaults__.get(name)
             if dflt is None:
                 _fail(f"{schema}: missing field {name!r}")
-            out[name] = dflt[1]() if dflt[0] else dflt[1]
+            # A field this (older-minor) sender does not know: its default, converted.
+            out[name] = dflt[2](dflt[1]() if dflt[0] else dflt[1])
             continue
         found += 1
         try:

@@ -264,6 +264,10 @@ def test_missing_fields_defaulted_or_rejected() -> None:
     dist = m.Disturbance(stamp=0.0, force=[1, 0, 0], torque=[0, 0, 0], duration=0.1)
     back = decode(_edit(dist, lambda o: o[3].pop("body")), m.Disturbance)
     assert back.body == "base"
+    dbg = m.example(m.LocomotionDebug)
+    back2 = decode(_edit(dbg, lambda o: o[3].pop("mpc_predicted_positions")))
+    assert back2.mpc_predicted_positions.shape == (0, 3)
+    assert not back2.mpc_predicted_positions.flags.writeable
     with pytest.raises(MessageError, match="missing field 'force'"):
         decode(_edit(dist, lambda o: o[3].pop("force")))
 
