@@ -19,7 +19,6 @@ import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-
 from quadmanip.services.locomotion.com_reference import ComReference, FsmParams
 from quadmanip.services.locomotion.convex_mpc import ConvexMpc, MpcParams, MpcWeights
 from quadmanip.services.locomotion.gait import GaitParams, TrotGait
@@ -350,7 +349,9 @@ class LocomotionController:
 
     def _damp(self, q16: np.ndarray) -> LegOutput:
         z = np.zeros(12)
-        return LegOutput(q16[:12].copy(), z, z.copy(), np.full(12, self.cfg.gains.kd_damp), z.copy())
+        return LegOutput(
+            q16[:12].copy(), z, z.copy(), np.full(12, self.cfg.gains.kd_damp), z.copy()
+        )
 
     def _posture(self, q16: np.ndarray) -> LegOutput:
         """Joint-space interpolation to the stand or sit pose (smoothstep in time)."""
@@ -381,9 +382,9 @@ class LocomotionController:
         walking = self.phase in ("walk", "stopping")
         t_g = self._t - self._gait_t0
         if walking:
-            contact, progress, gphase = self.gait.phase_info(t_g)
+            contact, progress, _ = self.gait.phase_info(t_g)
         else:
-            contact, progress, gphase = np.ones(4, dtype=bool), np.full(4, -1.0), 1
+            contact, progress = np.ones(4, dtype=bool), np.full(4, -1.0)
         # Velocity command timeout → stop.
         cmd = self.cmd_vel.copy()
         if walking and self._t - self.cmd_vel_time > cfg.cmd_timeout:

@@ -16,7 +16,6 @@ import math
 import threading
 
 import numpy as np
-
 from quadmanip.common import messages as m
 from quadmanip.common.service import Input, Output, Service, run_service
 from quadmanip.services.locomotion.controller import (
@@ -97,7 +96,9 @@ class LocomotionNode(Service):
     # ------------------------------------------------------------------ control loop
     def _held_mass(self, js: m.JointState) -> float:
         opt: NodeOptions = self.config.node
-        holding = js.gripper_effort > opt.grip_effort_threshold and js.gripper_gap > opt.grip_min_gap
+        holding = (
+            js.gripper_effort > opt.grip_effort_threshold and js.gripper_gap > opt.grip_min_gap
+        )
         return opt.held_object_mass if holding else 0.0
 
     def _on_lowstate(self, ls: m.LowState) -> None:

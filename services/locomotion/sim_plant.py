@@ -13,7 +13,6 @@ from types import SimpleNamespace
 
 import mujoco
 import numpy as np
-
 from quadmanip.common import messages as msg
 from quadmanip.common import robot_description as rd
 from quadmanip.sim.engine import PhysicsConfig, SimConfig, SimEngine
@@ -36,9 +35,7 @@ class SimPlant:
             mujoco.mj_resetDataKeyframe(model, data, model.key(key).id)
         world = SimpleNamespace(model=model, data=data, object_names=[])
         # Island sleeping only matters for resting objects; the robot alone has none.
-        cfg = SimConfig(
-            seed=seed, allow_test_disturbance=True, physics=PhysicsConfig(sleep=False)
-        )
+        cfg = SimConfig(seed=seed, allow_test_disturbance=True, physics=PhysicsConfig(sleep=False))
         self.engine = SimEngine(
             world, cfg, data=data, cameras=False, lidar=False, ground_truth=False
         )

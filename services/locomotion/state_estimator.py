@@ -88,11 +88,17 @@ class StateEstimator:
         self._h = h
         self._eye18 = np.eye(18)
 
-    def reset(self, quat: np.ndarray, foot_rel_body: np.ndarray, height: float | None = None) -> None:
+    def reset(
+        self, quat: np.ndarray, foot_rel_body: np.ndarray, height: float | None = None
+    ) -> None:
         """Start at the odom origin (x, y = 0) with the base height from leg kinematics."""
         self.R = quat_to_rot(np.asarray(quat, dtype=float))
         feet_w = (self.R @ foot_rel_body.T).T
-        z = height if height is not None else float(-np.mean(feet_w[:, 2]) + self.params.foot_radius)
+        z = (
+            height
+            if height is not None
+            else float(-np.mean(feet_w[:, 2]) + self.params.foot_radius)
+        )
         self.x[:] = 0.0
         self.x[2] = z
         self.x[6:18] = (feet_w + self.x[:3]).reshape(-1)
