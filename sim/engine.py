@@ -258,15 +258,23 @@ class SimEngine:
             self._contacts = self._capture_contacts()
         mujoco.mj_step1(m, d)
 
-    def step_tick(self, leg_cmd: msg.LegCommand | None = None) -> TickOutput:
-        """Apply ``leg_cmd`` (if any), advance one control tick, observe the new state."""
+    def step_tick(
+        self, leg_cmd: msg.LegCommand | None = None, *, sensors: bool = True
+    ) -> TickOutput:
+        """Apply ``leg_cmd`` (if any), advance one control tick, observe the new state.
+
+        ``sensors=False`` returns only the LowState; call :meth:`add_sensors` on the result
+        (before the next step) for the cameras, LiDAR and ground truth due at this tick.
+        The node uses this to publish the state first, so the controller computes its
+        answer while the sim renders.
+        """
         if leg_cmd is not None:
             self.apply_leg_command(leg_cmd)
         capture = self._contacts_every > 0 and (self.tick + 1) % self._contacts_every == 0
         for i in range(self.substeps):
             self.physics_step(capture_contacts=capture and i == self.substeps - 1)
         self.tick += 1
-        return self.observe()
+        return self.observe(sensors=sensors)
 
     # ------------------------------------------------------------- observation
     def _due(self, every: int) -> bool:
@@ -377,7 +385,7 @@ class SimEngine:
         r = judge_data(self.world, self.data, trial_start=self.start_time).to_message()
         return r.replace(stamp=self.time)
 
-    def observe(self) -> TickOutput:
+    def observe(self, sensors: bool = True) -> TickOutput:
         """The state of this tick plus every sensor/ground-truth output due at it."""
         out = TickOutput(
             tick=self.tick,
@@ -385,6 +393,12 @@ class SimEngine:
             lowstate=self.low_state(),
             leg_mode=self.actuators.leg_mode_at(float(self.data.time)),
         )
+        return self.add_sensors(out) if sensors else out
+
+    def add_sensors(self, out: TickOutput) -> TickOutput:
+        """Fill ``out`` (this tick's) with the sensor and ground-truth outputs due now."""
+        if out.tick != self.tick:
+            raise ValueError("add_sensors must be called at the tick it observes")
         if self._want_cameras:
             for name, every in self._cam_every.items():
                 if self._due(every):

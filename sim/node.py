@@ -118,6 +118,8 @@ class SimNode(Service):
             test_disturbance=self.config.allow_test_disturbance,
         )
         self.pub = {o.topic: self.publisher(o.topic) for o in self.outputs}
+        rates = self.config.physics.control_rate / max(self.config.node.clock_rate, 1e-9)
+        self._clock_every = max(1, round(rates))
         self.subscribe("sim/leg_command", self._on_leg)
         self.subscribe("sim/arm_trajectory", self._on_other)
         self.subscribe("sim/gripper_command", self._on_other)
@@ -125,11 +127,13 @@ class SimNode(Service):
 
     # ------------------------------------------------------------------ output
     def _publish(self, out: TickOutput) -> None:
+        """LowState (and the clock) first, then the sensors due at this tick."""
         p = self.pub
         p["sim/lowstate"].publish(out.lowstate)
-        every = max(1, round(self.config.physics.control_rate / self.config.node.clock_rate))
-        if out.tick % every == 0:
+        if out.tick % self._clock_every == 0:
             p["sim/clock"].publish(msg.Clock(stamp=out.stamp))
+        assert self.engine is not None
+        self.engine.add_sensors(out)
         for img in out.images:
             p[CAMERA_TOPICS[img.camera]].publish(img)
         if out.scan is not None:
@@ -174,7 +178,7 @@ class SimNode(Service):
         eng = self.engine
         assert eng is not None
         eng.ensure_renderer()  # the GL context lives in this thread
-        out = eng.observe()
+        out = eng.observe(sensors=False)
         self._publish(out)
         if self.mode == "lockstep":
             self._run_lockstep(out)
@@ -197,7 +201,7 @@ class SimNode(Service):
         log_t, log_sim = time.monotonic(), eng.time
         while not self.stop_event.is_set():
             self._drain_inbox()
-            out = eng.step_tick(self._take_leg())
+            out = eng.step_tick(self._take_leg(), sensors=False)
             self._publish(out)
             now = time.monotonic()
             target = t_ref + (eng.tick - tick_ref) * period
@@ -218,7 +222,7 @@ class SimNode(Service):
             if cmd is None:
                 break
             self._drain_inbox()
-            out = eng.step_tick(cmd)
+            out = eng.step_tick(cmd, sensors=False)
             self._publish(out)
             now = time.monotonic()
             if now - log_t >= RTF_LOG_PERIOD_S:
