@@ -14,8 +14,8 @@ with the service name, the bus session, a liveliness token ``<name>/alive``, a
 :class:`~quadmanip.common.messages.Heartbeat` on ``<name>/heartbeat`` at 1 Hz carrying the
 service state, and the lifecycle: ``starting`` → ``running`` → ``stopping`` on SIGTERM or
 SIGINT. The stop is bounded: after the signal the process exits within ``STOP_BUDGET_S``
-(2 s) whatever the service code does (a watchdog ends a stuck process with exit code 1;
-a second signal ends it at once).
+(2 s) whatever the service code does (signals are read from a wakeup fd by a dedicated
+thread, and a watchdog ends a stuck process with exit code 1; a second signal ends it at once).
 
 Inputs and outputs are declared, not just used: :meth:`Service.subscribe` and
 :meth:`Service.publisher` refuse topics that are not declared, so the declaration
@@ -45,6 +45,7 @@ import dataclasses
 import json
 import logging
 import os
+import select
 import signal
 import sys
 import threading
@@ -393,10 +394,13 @@ def run_service(
         logging.shutdown()
         os._exit(1)
 
-    def _on_signal(signum: int, _frame: object) -> None:
-        if stop_requested_at:  # second signal: the user means it
-            os._exit(1)
-        stop_requested_at.append(time.monotonic())
+    stop_lock = threading.Lock()
+
+    def _request_stop(signum: int) -> None:
+        with stop_lock:
+            if stop_requested_at:  # second signal: the user means it
+                os._exit(1)
+            stop_requested_at.append(time.monotonic())
         log.info("stop requested", signal=signal.Signals(signum).name)
         threading.Thread(target=_watchdog, name="stop-watchdog", daemon=True).start()
         stop_event.set()
@@ -404,11 +408,35 @@ def run_service(
         if svc_ref is not None:
             svc_ref.stop_event.set()
 
+    def _ignore(_signum: int, _frame: object) -> None:
+        """The Python-level handler: a no-op, the wakeup-fd thread does the work."""
+
+    def _signal_loop(fd: int) -> None:
+        while True:
+            try:
+                select.select([fd], [], [])
+                data = os.read(fd, 64)
+            except OSError:
+                return
+            for signum in data:
+                _request_stop(signum)
+
+    # Python runs signal handlers only in the main thread, between bytecodes: a main
+    # thread stuck in a long C call (a model compile) would delay the stop, watchdog
+    # included. The C-level handler, though, writes each signal number to the wakeup fd
+    # from whichever thread the kernel picked, without the GIL; a dedicated thread reads
+    # it and requests the stop, so the bounded stop holds whatever the main thread does.
     holder: dict[str, Service] = {}
     previous: dict[int, Any] = {}
+    previous_wakeup: int | None = None
+    wake_r = wake_w = -1
     if install_signals and threading.current_thread() is threading.main_thread():
+        wake_r, wake_w = os.pipe()
+        os.set_blocking(wake_w, False)
+        previous_wakeup = signal.set_wakeup_fd(wake_w, warn_on_full_buffer=False)
         for sig in (signal.SIGTERM, signal.SIGINT):
-            previous[sig] = signal.signal(sig, _on_signal)
+            previous[sig] = signal.signal(sig, _ignore)
+        threading.Thread(target=_signal_loop, args=(wake_r,), name="signals", daemon=True).start()
 
     code = 0
     bus: Bus | None = None
@@ -462,6 +490,8 @@ def run_service(
                 threading.Thread(target=_exit_soon, args=(code,), daemon=True).start()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+        if previous_wakeup is not None:
+            signal.set_wakeup_fd(previous_wakeup)
         elapsed = (time.monotonic() - stop_requested_at[0]) if stop_requested_at else None
         log.info("stopped", code=code, **({"stop_s": round(elapsed, 3)} if elapsed else {}))
     return code

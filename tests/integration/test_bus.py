@@ -212,3 +212,34 @@ def test_a_process_that_forgets_to_close_its_bus_still_exits(zenoh_router, spawn
     t0 = time.monotonic()
     assert child.wait(5) == 5, child.output()
     assert time.monotonic() - t0 < 3.0
+
+
+STUCK = """
+import ctypes, signal, sys
+from quadmanip.common.service import Service, run_service
+
+class Stuck(Service):
+    name = "stuck"
+
+    def setup(self):
+        # A long C call that never returns to Python, not even on a signal (like a C
+        # library that retries on EINTR): the main thread cannot run any Python handler.
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM, signal.SIGINT})
+        print("setup entered", flush=True)
+        ctypes.CDLL(None).sleep(30)
+
+sys.exit(run_service(Stuck, []))
+"""
+
+
+def test_a_service_stuck_in_c_code_still_exits_within_2s_of_sigterm(zenoh_router, spawn):
+    child = spawn("-c", STUCK, endpoint=zenoh_router)
+    assert child.wait_for("setup entered", 30), child.output()
+    time.sleep(0.2)
+    t0 = time.monotonic()
+    child.signal(signal.SIGTERM)
+    code = child.wait(5)
+    elapsed = time.monotonic() - t0
+    assert code == 1, child.output()  # forced: the stop overran, and says so
+    assert elapsed < 2.0, elapsed
+    assert "stop overran its budget" in child.output()
