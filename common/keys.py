@@ -22,7 +22,9 @@ from quadmanip.common import messages as m
 from quadmanip.common.schema import Message
 
 __all__ = [
+    "ACTIONS",
     "DEFAULT_ROBOT",
+    "Action",
     "KINDS",
     "SERVICES",
     "TOPICS",
@@ -107,6 +109,34 @@ TOPICS: dict[str, Topic] = {t.name: t for t in _TABLE}
 """Topic name ("sim/lowstate") -> row."""
 
 
+@dataclasses.dataclass(frozen=True)
+class Action:
+    """One known action: its goal message type (carried in ``ActionGoal.goal``)."""
+
+    name: str  # "<service>/action/<action>"
+    service: str
+    action: str
+    goal_type: type[Message]
+    doc: str
+
+
+def _a(service: str, action: str, goal_type: type[Message], doc: str) -> Action:
+    return Action(f"{service}/action/{action}", service, action, goal_type, doc)
+
+
+ACTIONS: dict[str, Action] = {
+    a.name: a
+    for a in (
+        _a("manipulation", "move_to_posture", m.PostureGoal, "arm to a named posture"),
+        _a("manipulation", "grasp", m.GraspGoal, "grasp an object (Algorithm 6)"),
+        _a("manipulation", "place", m.PlaceGoal, "place the held object"),
+        _a("manipulation", "open_drawer", m.DrawerGoal, "pull a drawer open"),
+    )
+}
+"""Action name ("manipulation/action/grasp") -> row. Servers may offer more; these are the
+ones other services rely on."""
+
+
 def validate_robot_name(robot: str) -> str:
     """Return ``robot`` if it is a valid key chunk (lower-case snake, <= 32 chars)."""
     if not isinstance(robot, str) or not _ROBOT_RE.match(robot):
@@ -177,6 +207,11 @@ def render_key_table_markdown(robot: str = DEFAULT_ROBOT) -> str:
         lines.append(
             f"| `{key(robot, t.name)}` | `{t.msg_type.__name__}` | {t.kind} | {t.direction} "
             f"| {t.service} | {t.doc} |"
+        )
+    for a in ACTIONS.values():
+        lines.append(
+            f"| `{action_key(robot, a.service, a.action)}` | `ActionGoal({a.goal_type.__name__})`"
+            f" | action | in | {a.service} | {a.doc} |"
         )
     lines.append(
         f"| `{PREFIX}/{robot}/<service>/action/<name>` | `ActionGoal` … `ActionResult` "

@@ -100,3 +100,19 @@ def test_markdown_lists_every_key() -> None:
         assert f"`qm/dog1/{name}`" in md and t.msg_type.__name__ in md
     assert md.splitlines()[0].startswith("| key |")
     assert "/action/<name>" in md and "/alive" in md
+
+
+def test_known_actions() -> None:
+    reg = set(registry().values())
+    assert set(keys.ACTIONS) >= {
+        "manipulation/action/move_to_posture",
+        "manipulation/action/grasp",
+        "manipulation/action/place",
+        "manipulation/action/open_drawer",
+    }
+    md = keys.render_key_table_markdown()
+    for name, a in keys.ACTIONS.items():
+        k = keys.action_key("dog1", a.service, a.action)
+        assert k == f"qm/dog1/{name}" and KEY_PATTERN.match(k)
+        assert a.goal_type in reg and f"`{k}`" in md
+        assert name not in keys.TOPICS
