@@ -94,12 +94,14 @@ def test_lockstep_rates_with_responder(zenoh_router, spawn, bus_factory):
     t0 = col.sim_time()
     assert col.wait_sim(t0 + SIM_SECONDS + 0.2, 90), node.output()[-3000:]
     _check_rates(col, t0)
-    # Lockstep: every tick published once, in order, 2 ms apart in sim time.
+    # Lockstep: every tick published, in order, 2 ms apart in sim time (a tick can repeat
+    # only if the sim republished it while waiting for a slow answer).
     with col.lock:
         ticks = [k for k in col.ticks if k > 0]
-        stamps = list(col.stamps["sim/lowstate"])
-    assert ticks == list(range(ticks[0], ticks[0] + len(ticks)))
-    assert max(abs(b - a - 0.002) for a, b in zip(stamps[1:], stamps[2:], strict=False)) < 1e-9
+        stamps = sorted(set(col.stamps["sim/lowstate"]))
+    assert all(b - a in (0, 1) for a, b in zip(ticks, ticks[1:], strict=False))
+    assert sorted(set(ticks)) == list(range(ticks[0], ticks[-1] + 1))
+    assert max(abs(b - a - 0.002) for a, b in zip(stamps, stamps[1:], strict=False)) < 1e-9
     # The responder holds the pose: the legs are active, the robot does not fall.
     assert "new=active" in node.output()
     node.signal(signal.SIGTERM)
