@@ -439,3 +439,31 @@ def solve_ik_or_raise(
 ) -> np.ndarray:
     """Convenience: joint vector or :class:`IkError` with a typed reason."""
     return solve_ik(geom, target, q_ref).q_array()
+
+
+def arm_points(geom: ArmGeometry, q: np.ndarray | tuple[float, ...], n: int = 4) -> np.ndarray:
+    """Points (x, z) along the arm's centre line in ``arm_base``: shoulder to fingertips."""
+    q1, q2, q3 = (float(v) for v in q[:3])
+    g = geom
+    sh = np.array([0.0, g.d1])
+    el = sh + g.d2 * np.array([math.sin(q1), math.cos(q1)])
+    a12 = q1 + q2
+    wr = el + np.array(
+        [g.d4 * math.cos(a12) + g.d3 * math.sin(a12), -g.d4 * math.sin(a12) + g.d3 * math.cos(a12)]
+    )
+    a = a12 + q3
+    tip = wr + (g.d5 + 0.02) * np.array([math.cos(a), -math.sin(a)])
+    s = np.linspace(0.0, 1.0, n)[:, None]
+    return np.vstack([sh + s * (el - sh), el + s * (wr - el), wr + s * (tip - wr)])
+
+
+def body_collision(
+    geom: ArmGeometry, q: np.ndarray | tuple[float, ...], front_x: float, min_z: float
+) -> bool:
+    """True when the arm's centre line dips below ``min_z`` over the trunk (x < ``front_x``).
+
+    A coarse self-collision guard for planning (trunk top, LiDAR dome); the physics decides
+    the rest.
+    """
+    pts = arm_points(geom, q)[1:]  # the shoulder itself sits on the trunk
+    return bool(np.any((pts[:, 0] < front_x) & (pts[:, 1] < min_z)))

@@ -36,6 +36,7 @@ import numpy as np
 from quadmanip.services.manipulation.arm_kinematics import (
     ArmGeometry,
     ArmTarget,
+    body_collision,
     fk_tcp,
     solve_ik,
     target_from_base_pose,
@@ -76,14 +77,22 @@ class GraspPlan:
     open_gap: float
 
 
+# Coarse trunk envelope in the arm_base frame (trunk front 0.15 m ahead of the mount, LiDAR
+# dome up to 0.035 m above it): the arm's centre line must stay above MIN_Z over the trunk.
+TRUNK_FRONT_X = 0.15
+TRUNK_MIN_Z = 0.045
+
+
 def _reachable(geom: ArmGeometry, targets: list[ArmTarget], q_ref: np.ndarray) -> str:
-    """'' if every target is solvable continuing from q_ref, else the first reason."""
+    """'' if every target is solvable continuing from q_ref (and clear of the trunk)."""
     q = q_ref
     for tg in targets:
         sol = solve_ik(geom, tg, q_ref=q, roll_symmetric=False)
         if not sol.ok:
             return f"{sol.reason.value if sol.reason else 'unreachable'}: {sol.detail}"
         q = np.asarray(sol.q)
+        if body_collision(geom, q, TRUNK_FRONT_X, TRUNK_MIN_Z):
+            return f"self_collision: the arm would touch the trunk at x={tg.x:.3f}, z={tg.z:.3f}"
     return ""
 
 

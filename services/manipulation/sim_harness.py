@@ -69,6 +69,12 @@ class PlacedObject:
     quat: tuple[float, float, float, float] | None = None
 
 
+def _quat(o: PlacedObject) -> tuple[float, float, float, float]:
+    if o.quat is not None:
+        return o.quat
+    return (math.cos(o.yaw / 2), 0.0, 0.0, math.sin(o.yaw / 2))
+
+
 @dataclass
 class _BodyMotion:
     start: np.ndarray
@@ -96,7 +102,60 @@ class SimHarness:
         body_move_time: float = 0.8,
         leg_kp: float = 180.0,
         leg_kd: float = 4.0,
+        world: object | None = None,
     ) -> None:
+        """Builds robot + floor + ``boxes`` + ``objects``, or uses a ``world`` from
+        :func:`quadmanip.sim.world.build_world` (the house) as it is."""
+        cat = load_catalogue()
+        self.catalogue = cat
+        self.world = world
+        if world is not None:
+            self.model = world.model  # type: ignore[attr-defined]
+            self.data = world.initial_data()  # type: ignore[attr-defined]
+            # stand at the start pose (the house may start the robot lying down)
+            key = self.model.key("home").id
+            saved = self.data.qpos.copy()
+            mujoco.mj_resetDataKeyframe(self.model, self.data, key)
+            robot = rd.free_joint_qpos_index(self.model) + np.arange(rd.load_mujoco_model().nq)
+            keep = np.ones(self.model.nq, dtype=bool)
+            keep[robot] = False
+            self.data.qpos[keep] = saved[keep]
+            objects = ()
+        else:
+            self.model = self._build(objects, boxes)
+            self.data = mujoco.MjData(self.model)
+            home = rd.home_qpos()
+            self.data.qpos[: len(home)] = home
+        m, d = self.model, self.data
+        for o in objects:
+            j = m.joint(f"obj/{o.name}/free")
+            adr = j.qposadr[0]
+            d.qpos[adr : adr + 3] = o.pos
+            d.qpos[adr + 3 : adr + 7] = _quat(o)
+        mujoco.mj_forward(m, d)
+        self.act = ActuatorLayer(m, ActuatorConfig(), LEG_JOINTS, ARM_JOINTS, GRIPPER_JOINTS)
+        self.substeps = max(1, round(1.0 / (control_rate * m.opt.timestep)))
+        self.base_id = m.body("base").id
+        # leg stand-in
+        self._kin = mujoco.MjData(m)
+        self._leg_q = d.qpos[self.act.legs.qpos].copy()
+        self._feet_world = np.array([d.site(f).xpos.copy() for f in FEET])
+        self._base_home = d.qpos[:3].copy()
+        self._base_quat = d.qpos[3:7].copy()
+        self.leg_kp = leg_kp
+        self.leg_kd = leg_kd
+        self.body_move_time = body_move_time
+        self._body_offset = np.zeros(3)
+        self._motion: _BodyMotion | None = None
+        self._tau_ff = self._gravity_ff(self._leg_q)
+        self._send_legs()
+        self.log = HarnessLog()
+        self.object_names = (
+            list(world.object_names) if world is not None else [o.name for o in objects]  # type: ignore[attr-defined]
+        )
+        self.gravity = GravityCompensator()
+
+    def _build(self, objects: Sequence[PlacedObject], boxes: Sequence[Box]) -> mujoco.MjModel:
         spec = rd.robot_spec()
         spec.worldbody.add_geom(
             name="floor",
@@ -117,46 +176,12 @@ class SimHarness:
                 friction=[b.friction, 0.005, 0.0001],
                 group=0,
             )
-        cat = load_catalogue()
-        self.catalogue = cat
+        contact = getattr(self.catalogue, "contact", None)
         for o in objects:
-            quat = (
-                o.quat if o.quat is not None else (math.cos(o.yaw / 2), 0, 0, math.sin(o.yaw / 2))
+            add_object(
+                spec.worldbody, o.name, self.catalogue.objects[o.name], o.pos, _quat(o), contact
             )
-            add_object(spec.worldbody, o.name, cat.objects[o.name], o.pos, quat)
-        self.model = spec.compile()
-        self.data = mujoco.MjData(self.model)
-        m, d = self.model, self.data
-        home = rd.home_qpos()
-        d.qpos[: len(home)] = home
-        for o in objects:
-            j = m.joint(f"obj/{o.name}/free")
-            adr = j.qposadr[0]
-            quat = (
-                o.quat if o.quat is not None else (math.cos(o.yaw / 2), 0, 0, math.sin(o.yaw / 2))
-            )
-            d.qpos[adr : adr + 3] = o.pos
-            d.qpos[adr + 3 : adr + 7] = quat
-        mujoco.mj_forward(m, d)
-        self.act = ActuatorLayer(m, ActuatorConfig(), LEG_JOINTS, ARM_JOINTS, GRIPPER_JOINTS)
-        self.substeps = max(1, round(1.0 / (control_rate * m.opt.timestep)))
-        self.base_id = m.body("base").id
-        self.object_names = [o.name for o in objects]
-        # leg stand-in
-        self._kin = mujoco.MjData(m)
-        self._leg_q = d.qpos[self.act.legs.qpos].copy()
-        self._feet_world = np.array([d.site(f).xpos.copy() for f in FEET])
-        self._base_home = d.qpos[:3].copy()
-        self._base_quat = d.qpos[3:7].copy()
-        self.leg_kp = leg_kp
-        self.leg_kd = leg_kd
-        self.body_move_time = body_move_time
-        self._body_offset = np.zeros(3)
-        self._motion: _BodyMotion | None = None
-        self._tau_ff = self._gravity_ff(self._leg_q)
-        self._send_legs()
-        self.log = HarnessLog()
-        self.gravity = GravityCompensator()
+        return spec.compile()
 
     # ------------------------------------------------------------ ground truth
     def object_pos(self, name: str) -> np.ndarray:
@@ -221,7 +246,9 @@ class SimHarness:
         """Leg joints that keep the feet at their standing spots with the base at home+offset."""
         m, k = self.model, self._kin
         k.qpos[:] = self.data.qpos
-        k.qpos[:3] = self._base_home + offset
+        r0 = np.zeros(9)
+        mujoco.mju_quat2Mat(r0, self._base_quat)
+        k.qpos[:3] = self._base_home + r0.reshape(3, 3) @ offset  # offsets are in the body frame
         k.qpos[3:7] = self._base_quat
         k.qpos[self.act.legs.qpos] = self._leg_q
         jac = np.zeros((3, m.nv))

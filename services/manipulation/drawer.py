@@ -1,0 +1,234 @@
+"""Opening a drawer: grip the handle bar and pull it straight back (paper Section 7.2).
+
+The handle is a horizontal bar in front of the drawer. The tool approaches horizontally
+(pitch 0) with the wrist rolled a quarter turn so the fingers close vertically around the
+bar, from ``drawer_standoff`` in front of it; it closes, verifies the bar is held (gap and
+effort), and pulls along the drawer's axis, which must point back towards the robot in the
+arm plane (the body turns to face the cabinet first - navigation's job). The pull goes as
+far as the arm reaches; the rest (if any) is done by moving the body backwards (COM x), as
+Algorithm 6 does for reaching forward. Then it releases and backs off.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from quadmanip.services.manipulation.arm_kinematics import (
+    ArmGeometry,
+    ArmTarget,
+    fk_tcp,
+    solve_ik,
+    target_from_base_pose,
+)
+from quadmanip.services.manipulation.config import ManipulationConfig
+from quadmanip.services.manipulation.grasp import GraspRejected, _line, _reachable
+from quadmanip.services.manipulation.gripper import GraspMonitor, GripState
+from quadmanip.services.manipulation.primitive import (
+    BodyPoseRequest,
+    Primitive,
+    PrimitiveFailed,
+    Script,
+)
+from quadmanip.services.manipulation.trajectory import plan_cartesian_line
+
+__all__ = ["DrawerPlan", "DrawerPrimitive", "plan_drawer"]
+
+HANDLE_WIDTH = 0.02  # bar thickness the fingers open around (+ margin), m
+# Closest tool-centre x (arm_base frame) of a pull. With the wrist rolled a quarter turn the
+# palm stands 13 cm tall: above trunk level it would meet the LiDAR dome / trunk edge nearer.
+MIN_PULL_X_LOW = 0.25
+MIN_PULL_X_HIGH = 0.32
+LOW_Z = -0.12
+# The bar is held in the front half of the pads (tool centre this far behind it), so backing
+# off RETREAT releases it without the palm reaching the trunk.
+GRIP_BEHIND = 0.012
+RETREAT = 0.045
+
+
+def _min_pull_x(z: float) -> float:
+    return MIN_PULL_X_LOW if z < LOW_Z else MIN_PULL_X_HIGH
+
+
+class DrawerPlan:
+    """Checked poses of a drawer opening."""
+
+    def __init__(
+        self,
+        body: BodyPoseRequest,
+        ready: ArmTarget,
+        grip: ArmTarget,
+        pulled: ArmTarget,
+        body_pull: float,
+        q_ready: tuple[float, ...],
+    ) -> None:
+        self.body = body
+        self.ready = ready
+        self.grip = grip
+        self.pulled = pulled
+        self.body_pull = body_pull
+        self.q_ready = q_ready
+
+
+def plan_drawer(
+    geom: ArmGeometry,
+    cfg: ManipulationConfig,
+    handle_base: np.ndarray,
+    pull_direction: np.ndarray,
+    distance: float,
+    body: BodyPoseRequest | None = None,
+) -> DrawerPlan:
+    """Computes and checks the drawer poses; raises :class:`GraspRejected` with a reason."""
+    g = cfg.grasp
+    body = body or BodyPoseRequest()
+    p = np.asarray(handle_base, dtype=float)
+    d = np.asarray(pull_direction, dtype=float)
+    if (
+        p.shape != (3,)
+        or d.shape != (3,)
+        or not (np.all(np.isfinite(p)) and np.all(np.isfinite(d)))
+    ):
+        raise GraspRejected("invalid_goal", "handle position and pull direction must be finite")
+    if not math.isfinite(distance) or distance <= 0.0 or distance > 0.4:
+        raise GraspRejected("invalid_goal", f"pull distance {distance} outside (0, 0.4] m")
+    n = float(np.linalg.norm(d))
+    if n < 1e-6:
+        raise GraspRejected("invalid_goal", "pull direction is zero")
+    d = d / n
+    if d[0] > -0.95:
+        raise GraspRejected(
+            "pull_direction_unsupported",
+            "the pull must point back towards the robot along its x axis (within 18 deg); "
+            "turn the body to face the drawer",
+        )
+    target, lateral = target_from_base_pose(geom, p, 0.0, 0.0)
+    y_total = body.y_offset + lateral
+    if abs(y_total) > g.max_lateral_shift + 1e-9:
+        raise GraspRejected(
+            "lateral_out_of_range",
+            f"needs a body shift of {y_total:+.3f} m (limit {g.max_lateral_shift:.3f}); "
+            "reposition the robot",
+        )
+    pull = max(distance, g.drawer_pull)
+    roll = math.pi / 2
+    ref = np.asarray(cfg.motion.elbow_ref, dtype=float)
+    best: tuple[float, float, float] | None = None  # (arm pull, crouch, pitch)
+    why = "no candidate"
+    need_arm = pull - (g.max_forward_shift + body.x_offset)
+    # a level tool first; crouching (COM z) and pitching the tool down widen the low
+    # drawers' pull range
+    for pitch in (0.0, 0.3, 0.6):
+        for crouch in (0.0, 0.05, g.max_crouch):
+            z = target.z + crouch
+            grip = ArmTarget(target.x - GRIP_BEHIND, z, pitch, roll)
+            ready = ArmTarget(target.x - g.drawer_standoff, z, pitch, roll)
+            fail = _reachable(geom, _line(ready, grip, 6), ref)
+            if fail:
+                why = fail
+                continue
+            arm_pull = 0.0
+            max_arm = min(pull, grip.x - _min_pull_x(z))
+            for cand in np.arange(max_arm, -1e-9, -0.01):
+                end = ArmTarget(grip.x - cand, z, pitch, roll)
+                if not _reachable(geom, _line(grip, end, max(3, int(cand / 0.01))), ref):
+                    arm_pull = float(cand)
+                    break
+            if best is None or arm_pull > best[0] + 1e-9:
+                best = (arm_pull, crouch, pitch)
+            if arm_pull >= need_arm - 1e-9:
+                break
+        if best is not None and best[0] >= need_arm - 1e-9:
+            break
+    if best is None:
+        raise GraspRejected("unreachable", f"drawer handle: {why}")
+    arm_pull, crouch, pitch = best
+    body_pull = pull - arm_pull
+    if body.x_offset - body_pull < -g.max_forward_shift - 1e-9:
+        raise GraspRejected(
+            "unreachable", f"pull of {pull:.2f} m: arm reaches {arm_pull:.2f} m only"
+        )
+    z = target.z + crouch
+    grip = ArmTarget(target.x - GRIP_BEHIND, z, pitch, roll)
+    ready = ArmTarget(target.x - g.drawer_standoff, z, pitch, roll)
+    sol = solve_ik(geom, ready, q_ref=ref, roll_symmetric=False)
+    pulled = ArmTarget(grip.x - arm_pull, z, pitch, roll)
+    return DrawerPlan(
+        BodyPoseRequest(body.x_offset, y_total, body.z_offset - crouch),
+        ready,
+        grip,
+        pulled,
+        body_pull,
+        sol.q,  # type: ignore[arg-type]
+    )
+
+
+class DrawerPrimitive(Primitive):
+    """Runs a :class:`DrawerPlan`: approach, grip the handle, pull, release, back off."""
+
+    name = "open_drawer"
+
+    def __init__(
+        self,
+        geom: ArmGeometry,
+        cfg: ManipulationConfig,
+        plan: DrawerPlan,
+        monitor: GraspMonitor | None = None,
+        body: BodyPoseRequest | None = None,
+    ) -> None:
+        super().__init__(geom, cfg, monitor, body)
+        self.plan = plan
+
+    def _line_to(self, goal: ArmTarget, speed: float | None = None) -> Script:
+        obs = self._last_obs
+        assert obs is not None
+        m = self.cfg.motion
+        traj = plan_cartesian_line(
+            self.geom,
+            obs.q_arm,
+            goal,
+            obs.t,
+            self.limits,
+            linear_speed=speed or m.linear_speed,
+            angular_speed=m.angular_speed,
+            dt=m.dt,
+        )
+        yield from self.run_trajectory(traj)
+
+    def script(self) -> Script:
+        """Approach, grip, pull (arm, then body), release, back off."""
+        plan = self.plan
+        self.stage("drawer: moveCOM, open gripper", 0.05)
+        yield []
+        yield from self.open_gripper(HANDLE_WIDTH + self.cfg.grasp.open_margin)
+        b = plan.body
+        yield from self.move_body(b.x_offset, b.y_offset, b.z_offset)
+        self.stage("drawer: in front of the handle", 0.2)
+        yield from self.move_joints(np.asarray(plan.q_ready))
+        self.stage("drawer: reach the handle", 0.35)
+        yield from self._line_to(plan.grip)
+        self.stage("drawer: grip", 0.45)
+        yield from self.close_gripper()
+        if self.monitor.state is not GripState.HOLDING:
+            yield from self.open_gripper()
+            raise PrimitiveFailed("handle_missed: fingers closed on nothing")
+        self.stage("drawer: pull", 0.6)
+        yield from self._line_to(plan.pulled, speed=0.1)
+        if plan.body_pull > 0.0:
+            yield from self.move_body(b.x_offset - plan.body_pull, b.y_offset, b.z_offset)
+        if self.monitor.state is not GripState.HOLDING:
+            raise PrimitiveFailed(f"handle_lost during the pull ({self.monitor.state.value})")
+        self.stage("drawer: release", 0.85)
+        yield from self.open_gripper()
+        # back off along the pull, then rise above the handle before the body returns
+        # forward (open fingers would otherwise push the drawer shut again)
+        # (the wrist may have to pitch to back off near its range limit)
+        for dx, dz in ((-RETREAT, 0.0), (0.0, 0.08)):
+            obs = self._last_obs
+            assert obs is not None
+            here = fk_tcp(self.geom, obs.q_arm)
+            for dp in (0.0, 0.3, -0.3, 0.6):
+                nxt = ArmTarget(here.x + dx, here.z + dz, here.pitch + dp, float(obs.q_arm[3]))
+                if solve_ik(self.geom, nxt, q_ref=obs.q_arm, roll_symmetric=False).ok:
+                    yield from self._line_to(nxt)
+                    break
+        yield from self.move_body(0.0, 0.0, 0.0)
