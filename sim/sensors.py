@@ -145,16 +145,17 @@ class Imu:
         if gyro is None or acc is None:
             raise ValueError("the model needs gyro and accelerometer sensors on the IMU site")
         if cfg.orientation_noise > 0:
+            # Small random rotation: rotation vector with std orientation_noise per axis.
+            rv = self.rng.normal(0.0, cfg.orientation_noise, 3)
             dq = np.zeros(4)
-            mujoco.mju_axisAngle2Quat(
-                dq, self.rng.normal(0, 1, 3) + 1e-12, abs(self.rng.normal(0, cfg.orientation_noise))
-            )
+            mujoco.mju_axisAngle2Quat(dq, rv / max(np.linalg.norm(rv), 1e-12), np.linalg.norm(rv))
             out = np.zeros(4)
             mujoco.mju_mulQuat(out, quat, dq)
             quat = out
         quat = quat / np.linalg.norm(quat)
-        gyro = gyro + self._gyro_bias + self.rng.normal(0.0, cfg.gyro_noise, 3)
-        acc = acc + self._accel_bias + self.rng.normal(0.0, cfg.accel_noise, 3)
+        noise = self.rng.standard_normal(6)
+        gyro = gyro + self._gyro_bias + cfg.gyro_noise * noise[:3]
+        acc = acc + self._accel_bias + cfg.accel_noise * noise[3:]
         return ImuReading(quat, gyro, acc)
 
 

@@ -159,3 +159,17 @@ def test_imu_noise_matches_config(scene):
     assert np.std(gyro) == pytest.approx(cfg.gyro_noise, rel=0.15)
     acc = np.array([r.linear_acceleration for r in readings])
     assert np.std(acc - acc.mean(axis=0)) == pytest.approx(cfg.accel_noise, rel=0.15)
+
+
+def test_imu_orientation_noise(scene):
+    m, _ = scene
+    dd = mujoco.MjData(m)
+    mujoco.mj_resetDataKeyframe(m, dd, m.key(rd.HOME_KEY).id)
+    mujoco.mj_forward(m, dd)
+    sigma = 0.01
+    imu = Imu(m, ImuConfig(orientation_noise=sigma), np.random.default_rng(2))
+    quats = np.array([imu.read(dd).orientation for _ in range(500)])
+    # Angle from the true (level) attitude: RMS of a 3-axis rotation vector = sqrt(3) sigma.
+    angles = 2 * np.arccos(np.clip(np.abs(quats[:, 0]), -1, 1))
+    assert np.sqrt(np.mean(angles**2)) == pytest.approx(np.sqrt(3) * sigma, rel=0.1)
+    np.testing.assert_allclose(np.linalg.norm(quats, axis=1), 1.0, atol=1e-12)
