@@ -104,7 +104,10 @@ class LocomotionConfig:
     stand_height: float = 0.30  # base height when standing (m)
     stand_up_time: float = 1.2
     sit_time: float = 1.2
-    cmd_timeout: float = 0.2
+    cmd_timeout: float = 0.15
+    pose_speed: float = 0.1  # m/s, body pose moves while standing
+    stand_integral_gain: float = 4.0  # 1/s, integral action on the standing pose
+    stand_integral_limit: float = 0.03  # m
     held_mass: float = 0.0
     profile: str = "tuned"
     profiles: dict[str, Profile] = field(default_factory=default_profiles)
@@ -207,6 +210,7 @@ class LocomotionController:
         self._stop_requested = False
         self._auto_walk = True
         self.mpc_tick = 0
+        self._pose_int = np.zeros(3)
         self._inertia = self.kin.body_inertia(self.held_mass)
         self.last_rpy = np.zeros(3)
 
@@ -307,6 +311,7 @@ class LocomotionController:
 
     def _start_walk(self) -> None:
         self.phase = "walk"
+        self._pose_int = np.zeros(3)
         self._gait_t0 = self._t
         self._stop_requested = False
 
@@ -426,10 +431,21 @@ class LocomotionController:
             c, s = math.cos(yaw0), math.sin(yaw0)
             off = np.array([c * self.body_pose[1] - s * self.body_pose[2],
                             s * self.body_pose[1] + c * self.body_pose[2]])  # fmt: skip
-            self.ref.p_target = np.array([feet_xy[0] + off[0], feet_xy[1] + off[1], height])
+            goal = np.array([feet_xy[0] + off[0], feet_xy[1] + off[1], height])
+            # Integral action on the standing pose: removes the steady-state offset that the
+            # single-rigid-body model leaves (leg masses, joint friction), so body pose
+            # commands land within millimetres.
+            # It integrates only near the goal, so the transient of a new command winds
+            # nothing up.
+            ki, lim = cfg.stand_integral_gain, cfg.stand_integral_limit
+            err = goal - pos
+            near = (np.abs(err) < 0.02) & (np.abs(vel) < 0.02)
+            self._pose_int = np.clip(self._pose_int + ki * err * dt * near, -lim, lim)
+            self.ref.p_target = goal + self._pose_int
             yt = yaw0 + self.body_pose[5]
             self.ref.q_target = np.array([math.cos(yt / 2), 0.0, 0.0, math.sin(yt / 2)])
-            self.ref.v_target_world = np.zeros(3)
+            # Algorithm 7's VEL_LIMIT for body pose moves while standing.
+            self.ref.v_target_world = np.full(3, cfg.pose_speed)
             self.ref.yaw_rate_target = 0.0
             rp_des = self.body_pose[3:5]
         # Feet in the world (odom) frame.
