@@ -1,0 +1,257 @@
+"""The manipulation service: arm and gripper primitives as Zenoh actions.
+
+Actions (``manipulation/action/<name>``): ``move_to_posture`` (PostureGoal), ``grasp``
+(GraspGoal, Algorithm 6), ``place`` (PlaceGoal), ``open_drawer`` (DrawerGoal). Each goal is
+planned when it arrives - an unreachable or invalid goal is rejected with the planner's
+reason before anything moves - then executed by a transport-free primitive that this node
+steps at ``loop_period`` with the newest LowState. Commands go to the sim (or a hardware
+adapter) as time-stamped ``ArmTrajectory`` (gravity-compensated servo targets, see
+``gravity.py``) and ``GripperCommand``, and body moves to locomotion as
+``BodyPoseCommand`` (Algorithm 6's moveCOM and crouch). Cancel stops the arm at once with a
+one-knot hold trajectory at the measured joints. One goal runs at a time (others: "busy").
+
+``approach = "auto"`` on a grasp picks vertical when the vertical grasp is reachable, else
+horizontal. The held object's hang below the tool centre (needed to place it from above)
+is measured at grasp time as the grasp point's height above the floor when the grasp was
+near the floor (the standing height comes from the description), else taken as 5 cm.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+import numpy as np
+from quadmanip.common import messages as m
+from quadmanip.common import robot_description as rd
+from quadmanip.common.bus import ActionCanceled, ActionFailed, GoalHandle
+from quadmanip.common.service import Input, Output, Service, run_service
+from quadmanip.services.manipulation.arm_kinematics import ArmGeometry
+from quadmanip.services.manipulation.config import ManipulationConfig
+from quadmanip.services.manipulation.drawer import DrawerPrimitive, plan_drawer
+from quadmanip.services.manipulation.grasp import GraspPrimitive, GraspRejected, plan_grasp
+from quadmanip.services.manipulation.gravity import GravityCompensator
+from quadmanip.services.manipulation.gripper import GraspMonitor
+from quadmanip.services.manipulation.place import PlacePrimitive, plan_place
+from quadmanip.services.manipulation.postures import resolve_postures
+from quadmanip.services.manipulation.primitive import (
+    ArmCommand,
+    BodyPoseRequest,
+    Command,
+    GripperCmd,
+    Observation,
+    Primitive,
+    Status,
+)
+from quadmanip.services.manipulation.trajectory import TrajectoryError
+
+__all__ = ["ManipulationNode", "PostureMove", "main"]
+
+DEFAULT_HANG = 0.05
+ARM = slice(12, 16)
+
+
+class PostureMove(Primitive):
+    """Joint-space move to a named posture (limits enforced by the planner)."""
+
+    name = "move_to_posture"
+
+    def __init__(
+        self, geom: ArmGeometry, cfg: ManipulationConfig, q_goal: np.ndarray, **kw: Any
+    ) -> None:
+        super().__init__(geom, cfg, **kw)
+        self.q_goal = np.asarray(q_goal, dtype=float)
+
+    def script(self):  # noqa: ANN201 - generator type from Primitive
+        """One synchronised quintic move."""
+        self.stage("moving", 0.1)
+        yield []
+        yield from self.move_joints(self.q_goal)
+
+
+class ManipulationNode(Service):
+    """Serves the manipulation actions; owns the arm joints and the gripper."""
+
+    name = "manipulation"
+    config_type = ManipulationConfig
+    inputs = (Input("sim/lowstate", m.LowState, latest_only=True, doc="joint encoders, gripper"),)
+    outputs = (
+        Output("sim/arm_trajectory", m.ArmTrajectory, doc="time-stamped arm trajectory"),
+        Output("sim/gripper_command", m.GripperCommand, doc="finger gap + force limit"),
+        Output("locomotion/body_pose", m.BodyPoseCommand, doc="moveCOM / crouch requests"),
+    )
+    actions = ("move_to_posture", "grasp", "place", "open_drawer")
+    loop_period = 0.005
+
+    def setup(self) -> None:
+        """Loads the description, postures and publishers; declares the action servers."""
+        cfg: ManipulationConfig = self.config
+        self.geom = ArmGeometry.from_description()
+        self.postures = resolve_postures(self.geom, cfg)
+        self.gravity = GravityCompensator()
+        self.monitor = GraspMonitor(cfg.gripper)
+        self.body = BodyPoseRequest()
+        self.hang = DEFAULT_HANG
+        self.floor_z = -float(rd.home_qpos()[2])  # floor height in the body frame, standing
+        self.pub_arm = self.publisher("sim/arm_trajectory")
+        self.pub_grip = self.publisher("sim/gripper_command")
+        self.pub_body = self.publisher("locomotion/body_pose")
+        self.state_cache = self.latest("sim/lowstate")
+        self._lock = threading.Lock()
+        self.active: Primitive | None = None
+        self._cancel_req = False
+        bus = self.bus
+        bus.action_server(self.name, "move_to_posture", m.PostureGoal, self._exec, self._accept)
+        bus.action_server(self.name, "grasp", m.GraspGoal, self._exec, self._accept)
+        bus.action_server(self.name, "place", m.PlaceGoal, self._exec, self._accept)
+        bus.action_server(self.name, "open_drawer", m.DrawerGoal, self._exec, self._accept)
+        self.set_state("running")
+
+    # ------------------------------------------------------------------ planning
+    def _observation(self) -> Observation | None:
+        st = self.state_cache.get()
+        if st is None:
+            return None
+        j = st.joints
+        return Observation(
+            t=float(st.stamp),
+            q_arm=np.asarray(j.q[ARM], dtype=float),
+            dq_arm=np.asarray(j.dq[ARM], dtype=float),
+            gripper_gap=float(j.gripper_gap),
+            gripper_effort=float(j.gripper_effort),
+        )
+
+    def _make(self, goal: m.Message, obs: Observation) -> Primitive:
+        """Plans a primitive for ``goal``; raises GraspRejected/ValueError with a reason."""
+        cfg: ManipulationConfig = self.config
+        kw = {"monitor": self.monitor, "body": self.body}
+        if isinstance(goal, m.PostureGoal):
+            if goal.posture not in self.postures:
+                known = ", ".join(sorted(self.postures))
+                raise GraspRejected("unknown_posture", f"{goal.posture!r} (known: {known})")
+            return PostureMove(self.geom, cfg, self.postures[goal.posture], **kw)
+        if isinstance(goal, m.GraspGoal):
+            pos = np.asarray(goal.position, dtype=float)
+            approaches = ("vertical", "horizontal") if goal.approach == "auto" else (goal.approach,)
+            err: GraspRejected | None = None
+            for ap in approaches:
+                try:
+                    plan = plan_grasp(self.geom, cfg, pos, ap, goal.yaw, goal.width, self.body)
+                except GraspRejected as exc:
+                    err = err or exc
+                    continue
+                return GraspPrimitive(self.geom, cfg, plan, **kw)
+            assert err is not None
+            raise err
+        if isinstance(goal, m.PlaceGoal):
+            if not self.monitor.holding:
+                raise GraspRejected("not_holding", "the gripper holds nothing to place")
+            plan = plan_place(self.geom, cfg, goal.position, obs.q_arm, self.hang, self.body)
+            return PlacePrimitive(self.geom, cfg, plan, **kw)
+        if isinstance(goal, m.DrawerGoal):
+            plan = plan_drawer(
+                self.geom, cfg, goal.handle_position, goal.pull_direction, goal.distance, self.body
+            )
+            return DrawerPrimitive(self.geom, cfg, plan, **kw)
+        raise GraspRejected("invalid_goal", f"unsupported goal {type(goal).__name__}")
+
+    def _accept(self, goal: m.Message) -> tuple[bool, str]:
+        obs = self._observation()
+        if obs is None:
+            return False, "no_joint_state: no LowState received yet"
+        if self.active is not None and not self.active.done:
+            return False, f"busy: {self.active.name} running"
+        try:
+            self._make(goal, obs)
+        except (GraspRejected, TrajectoryError) as exc:
+            return False, str(exc)
+        return True, ""
+
+    # ----------------------------------------------------------------- execution
+    def _exec(self, handle: GoalHandle) -> m.Message | None:
+        obs = self._observation()
+        if obs is None:
+            raise ActionFailed("no_joint_state")
+        try:
+            prim = self._make(handle.goal, obs)
+        except (GraspRejected, TrajectoryError) as exc:
+            raise ActionFailed(str(exc)) from exc
+        with self._lock:
+            self.active = prim
+            self._cancel_req = False
+        last_fb = ""
+        while not prim.done:
+            if handle.cancel_requested:
+                with self._lock:
+                    self._cancel_req = True
+                while not prim.done:
+                    time.sleep(0.005)
+                raise ActionCanceled("canceled: arm holds its measured position")
+            if prim.progress.text != last_fb:
+                last_fb = prim.progress.text
+                handle.feedback(float(prim.progress.value), last_fb)
+            time.sleep(0.01)
+        self.body = prim.body
+        if isinstance(prim, GraspPrimitive) and prim.status is Status.SUCCEEDED:
+            z = float(handle.goal.position[2])
+            near_floor = prim.plan.approach == "vertical" and z - self.floor_z < 0.15
+            self.hang = max(0.01, z - self.floor_z) if near_floor else DEFAULT_HANG
+        if prim.status is Status.SUCCEEDED:
+            return None
+        if prim.status is Status.CANCELED:
+            raise ActionCanceled(prim.reason)
+        raise ActionFailed(prim.reason or "failed")
+
+    def _send(self, cmds: list[Command], stamp: float) -> None:
+        cfg: ManipulationConfig = self.config
+        for c in cmds:
+            if isinstance(c, ArmCommand):
+                q_cmd = self.gravity.offset_knots(c.traj, cfg.motion.kp)
+                self.pub_arm.publish(
+                    m.ArmTrajectory(
+                        stamp=stamp,
+                        t=c.traj.t,
+                        q=q_cmd,
+                        dq=c.traj.dq,
+                        kp=np.asarray(cfg.motion.kp),
+                        kd=np.asarray(cfg.motion.kd),
+                    )
+                )
+            elif isinstance(c, GripperCmd):
+                self.pub_grip.publish(
+                    m.GripperCommand(stamp=stamp, gap=c.gap, max_force=c.max_force)
+                )
+            elif isinstance(c, BodyPoseRequest):
+                self.pub_body.publish(
+                    m.BodyPoseCommand(
+                        stamp=stamp, x_offset=c.x_offset, y_offset=c.y_offset, z_offset=c.z_offset
+                    )
+                )
+
+    def step(self) -> None:
+        """Feeds the newest joint state to the running primitive, sends its commands."""
+        prim = self.active
+        obs = self._observation()
+        if obs is None:
+            return
+        if prim is None or prim.done:
+            # keep watching the grip while carrying between actions (holding -> lost)
+            self.monitor.update(obs.t, obs.gripper_gap, obs.gripper_effort)
+            return
+        with self._lock:
+            cancel = self._cancel_req
+        cmds = prim.cancel(obs) if cancel else prim.step(obs)
+        self._send(cmds, obs.t)
+
+    def teardown(self) -> None:
+        """Holds the arm where it is when the service stops mid-motion."""
+        prim = self.active
+        obs = self._observation()
+        if prim is not None and not prim.done and obs is not None:
+            self._send(prim.cancel(obs), obs.t)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``quadmanip service manipulation``."""
+    return run_service(ManipulationNode, argv)
