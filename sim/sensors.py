@@ -21,6 +21,8 @@
 
 from __future__ import annotations
 
+import os
+import sys
 from dataclasses import dataclass
 
 import mujoco
@@ -162,6 +164,24 @@ class Imu:
 # --------------------------------------------------------------------------- cameras
 
 
+def gl_context_class() -> type:
+    """The OpenGL context to render with. MuJoCo picks one from ``MUJOCO_GL`` when it is
+    first imported; honour ``MUJOCO_GL`` as it is now (it may be set after that import),
+    and on a headless Linux box (no DISPLAY) with it unset use EGL (software llvmpipe
+    without a GPU) rather than GLFW, which cannot open a window there."""
+    backend = os.environ.get("MUJOCO_GL", "").strip().lower()
+    headless = sys.platform.startswith("linux") and not os.environ.get("DISPLAY")
+    if backend == "egl" or (backend in ("", "glfw") and headless):
+        from mujoco.egl import GLContext
+
+        return GLContext
+    if backend == "osmesa":
+        from mujoco.osmesa import GLContext as OsMesaContext
+
+        return OsMesaContext
+    return mujoco.GLContext
+
+
 def intrinsics(fovy_deg: float, width: int, height: int) -> np.ndarray:
     """OpenCV K of a pinhole camera with vertical field of view ``fovy`` (square pixels).
 
@@ -210,7 +230,7 @@ class RgbdRenderer:
                 raise KeyError(f"camera {name!r} not in the model")
             self._cam_ids[name] = cid
         self._base = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, base_body)
-        self._gl = mujoco.GLContext(
+        self._gl = gl_context_class()(
             int(model.vis.global_.offwidth), int(model.vis.global_.offheight)
         )
         self._gl.make_current()

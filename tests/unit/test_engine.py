@@ -6,7 +6,9 @@ Every test runs the real world of scenario ``paper-1`` (house, 10 objects, robot
 
 import os
 
-import mujoco
+os.environ.setdefault("MUJOCO_GL", "egl")  # before mujoco is imported
+
+import mujoco  # noqa: E402
 import numpy as np
 import pytest
 from quadmanip.common import messages as msg
@@ -15,7 +17,6 @@ from quadmanip.sim.actuators import LegMode
 from quadmanip.sim.engine import SimConfig, SimEngine, standing_data
 from quadmanip.sim.node import load_world
 
-os.environ.setdefault("MUJOCO_GL", "egl")
 pytestmark = pytest.mark.unit
 
 KP, KD = 150.0, 3.0  # test gains of a plain joint PD holding the home pose

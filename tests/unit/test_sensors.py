@@ -6,7 +6,9 @@ expected number follows from the model's poses and plane geometry.
 
 import os
 
-import mujoco
+os.environ.setdefault("MUJOCO_GL", "egl")  # before mujoco is imported
+
+import mujoco  # noqa: E402
 import numpy as np
 import pytest
 from quadmanip.common import robot_description as rd
@@ -20,7 +22,6 @@ from quadmanip.sim.sensors import (
     intrinsics,
 )
 
-os.environ.setdefault("MUJOCO_GL", "egl")
 pytestmark = pytest.mark.unit
 
 WALL_X = 2.0  # world x of the wall's near face
