@@ -1,0 +1,227 @@
+"""The controller in closed loop with MuJoCo physics, in-process (no Zenoh).
+
+The plant is the sim's own engine (actuator layer at 1 kHz, IMU model) with the robot on a
+flat floor, started in the description's `lying` keyframe. The controller sees only the
+LowState; ground truth is read by the test to judge. The same acceptance runs over Zenoh,
+with the sim and locomotion as separate processes, are in
+tests/integration/test_locomotion_acceptance.py.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import mujoco
+import numpy as np
+import pytest
+from quadmanip.common import robot_description as rd
+from quadmanip.services.locomotion.controller import (
+    CommandError,
+    LocomotionController,
+    load_locomotion_config,
+)
+from quadmanip.services.locomotion.sim_plant import SimPlant, controller_step
+
+pytestmark = pytest.mark.unit
+
+FOOT_SITES = [f"{leg}_foot" for leg in ("FL", "FR", "RL", "RR")]
+
+
+class Run:
+    """Controller + plant; `until(t, before_tick)` advances to sim time t."""
+
+    def __init__(self, plant: SimPlant | None = None, **overrides: object) -> None:
+        self.ctl = LocomotionController(load_locomotion_config(**overrides))
+        self.plant = plant or SimPlant()
+        self.ls = self.plant.lowstate
+        self.fell = False
+        self._feet = [self.plant.model.site(s).id for s in FOOT_SITES]
+
+    def until(self, t: float, before_tick: Callable[[float], None] | None = None) -> None:
+        while self.plant.time < t - 1e-9:
+            if before_tick is not None:
+                before_tick(self.ls.stamp)
+            self.ls = self.plant.step(controller_step(self.ctl, self.ls))
+            if self.ctl.phase in ("balance", "walk", "stopping") and self.plant.fallen():
+                self.fell = True
+
+    def stand(self) -> None:
+        self.ctl.set_mode("stand")
+        self.until(2.5)
+        assert self.ctl.phase == "balance"
+
+    def base_minus_feet(self) -> np.ndarray:
+        """True base position relative to the centre of the feet (world frame)."""
+        d = self.plant.data
+        return self.plant.true_position() - d.site_xpos[self._feet].mean(axis=0)
+
+    def walk(self, v: tuple[float, float, float], t_end: float, settle: float = 1.0) -> float:
+        """Walk with a 50 Hz command stream; returns the RMSE after `settle` seconds."""
+        t0 = self.plant.time
+        errs: list[np.ndarray] = []
+
+        def cmd(t: float) -> None:
+            k = round(t / 0.002)
+            if k % 10 == 0:
+                self.ctl.set_velocity(*v, now=t)
+            if t - t0 >= settle:
+                errs.append(self.plant.true_velocity_body() - np.asarray(v))
+
+        self.until(t_end, cmd)
+        e = np.array(errs)
+        self.lin_rmse = float(np.sqrt(np.mean(np.sum(e[:, :2] ** 2, axis=1))))
+        self.yaw_rmse = float(np.sqrt(np.mean(e[:, 2] ** 2)))
+        return self.lin_rmse
+
+
+def test_stands_up_from_lying_and_holds_still():
+    run = Run()
+    assert run.plant.true_position()[2] < 0.15  # starts lying
+    run.stand()
+    p0 = run.plant.true_position()
+    run.until(5.0)
+    p1 = run.plant.true_position()
+    assert p1[2] == pytest.approx(0.30, abs=0.01)
+    assert np.linalg.norm(p1[:2] - p0[:2]) < 0.02
+    rpy = run.ctl.last_rpy
+    assert abs(rpy[0]) < 0.02 and abs(rpy[1]) < 0.02
+    # The MPC's forces carry the weight measured by the plant's own model.
+    mass = float(run.plant.model.body_subtreemass[run.plant.model.body("base").id])
+    assert run.ctl.debug.foot_forces[:, 2].sum() == pytest.approx(mass * 9.81, rel=0.05)
+
+
+def test_trots_forward_at_half_a_metre_per_second():
+    run = Run()
+    run.stand()
+    rmse = run.walk((0.5, 0.0, 0.0), 6.0)
+    assert not run.fell
+    assert rmse <= 0.1
+    assert run.yaw_rmse <= 0.15
+    assert run.plant.true_position()[0] > 1.2  # 3.5 s of walking at ~0.5 m/s
+
+
+def test_turns_in_place_at_one_radian_per_second():
+    run = Run()
+    run.stand()
+    yaw0 = run.plant.true_yaw()
+    run.walk((0.0, 0.0, 1.0), 5.5)
+    assert not run.fell
+    assert run.yaw_rmse <= 0.15
+    assert run.lin_rmse <= 0.1
+    turned = (run.plant.true_yaw() - yaw0) % (2 * math.pi)
+    assert turned > 2.0  # 3 s at ~1 rad/s (mod 2π)
+
+
+def test_stops_and_stands_within_half_a_second_of_the_last_command():
+    run = Run()
+    run.stand()
+    run.walk((0.4, 0.0, 0.0), 4.5)
+    t_last = run.plant.time
+    run.until(t_last + 0.5)
+    v = run.plant.true_velocity_body()
+    assert np.linalg.norm(v[:2]) < 0.1
+    assert run.ctl.phase == "balance" and bool(np.all(run.ctl.debug.contact))
+    # Afterwards it only re-centres the body over its feet (at most pose_speed, 0.1 m/s).
+    p_stop = run.plant.true_position()
+    run.until(t_last + 1.5)
+    assert np.linalg.norm(run.plant.true_position()[:2] - p_stop[:2]) < 0.05
+
+
+def test_crouch_and_com_shift_follow_body_pose_commands():
+    run = Run()
+    run.stand()
+    ref = run.base_minus_feet()
+    run.ctl.set_body_pose(-0.08, 0.0, 0.0, 0.0, 0.0, 0.0)
+    run.until(4.5)
+    assert run.plant.true_position()[2] == pytest.approx(0.30 - 0.08, abs=0.01)
+    for dx, dy in ((0.05, 0.0), (-0.05, 0.0), (0.0, 0.05), (0.0, -0.05)):
+        run.ctl.set_body_pose(0.0, dx, dy, 0.0, 0.0, 0.0)
+        run.until(run.plant.time + 2.0)
+        shift = run.base_minus_feet() - ref
+        assert shift[0] == pytest.approx(dx, abs=0.01)
+        assert shift[1] == pytest.approx(dy, abs=0.01)
+    run.ctl.set_body_pose(0.0, 0.0, 0.0, 0.15, -0.1, 0.1)
+    run.until(run.plant.time + 1.5)
+    assert run.ctl.last_rpy[0] == pytest.approx(0.15, abs=0.02)
+    assert run.ctl.last_rpy[1] == pytest.approx(-0.1, abs=0.02)
+    assert not run.fell
+
+
+def test_recovers_from_a_30_newton_lateral_push_while_trotting_in_place():
+    run = Run()
+    run.stand()
+    run.ctl.set_mode("walk")
+    run.until(3.5)
+    run.plant.push(np.array([0.0, 30.0, 0.0]), 0.2)
+    peak = 0.0
+
+    def watch(_t: float) -> None:
+        nonlocal peak
+        peak = max(peak, abs(run.plant.true_velocity_body()[1]))
+
+    run.until(5.5, watch)
+    assert peak > 0.1  # the push really moved the robot
+    assert not run.fell
+    assert np.linalg.norm(run.plant.true_velocity_body()[:2]) < 0.15
+
+
+def test_rejects_invalid_commands_with_a_reason():
+    run = Run()
+    ctl = run.ctl
+    with pytest.raises(CommandError, match="unknown mode"):
+        ctl.set_mode("dance")
+    with pytest.raises(CommandError, match="standing"):
+        ctl.set_mode("walk")  # lying in damping: cannot walk
+    with pytest.raises(CommandError, match="need mode"):
+        ctl.set_velocity(0.2, 0.0, 0.0, now=0.0)
+    run.stand()
+    with pytest.raises(CommandError, match="non-finite"):
+        ctl.set_velocity(float("nan"), 0.0, 0.0, now=2.5)
+    with pytest.raises(CommandError, match="outside limits"):
+        ctl.set_velocity(2.0, 0.0, 0.0, now=2.5)
+    with pytest.raises(CommandError, match="z_offset"):
+        ctl.set_body_pose(-0.5, 0.0, 0.0, 0.0, 0.0, 0.0)
+    with pytest.raises(CommandError, match="non-finite"):
+        ctl.set_body_pose(0.0, float("inf"), 0.0, 0.0, 0.0, 0.0)
+    assert ctl.phase == "balance" and ctl.mode == "stand"
+    assert np.all(ctl.cmd_vel == 0.0)
+
+
+def heavy_gripper_plant(extra_mass: float) -> SimPlant:
+    """Robot whose gripper carries `extra_mass` kg: the model of a held object (no weld)."""
+    spec = rd.robot_spec()
+    spec.worldbody.add_geom(
+        name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05], friction=[1, 0.005, 1e-4]
+    )
+    model = spec.compile()
+    tcp_body = model.site_bodyid[model.site(rd.GRIPPER_TCP_SITE).id]
+    model.body_mass[tcp_body] += extra_mass
+    mujoco.mj_setConst(model, mujoco.MjData(model))
+    return SimPlant(model=model)
+
+
+def test_arm_reaching_forward_with_half_a_kilo_stands_and_walks():
+    run = Run(plant=heavy_gripper_plant(0.5), held_mass=0.5)
+    eng = run.plant.engine
+    # Arm forward: the sim's actuator layer tracks this trajectory from t = 0.5 s.
+    from quadmanip.common import messages as m
+
+    q_reach = np.array([0.9, 0.5, -1.3, 0.0])
+    q0 = run.plant.lowstate.joints.q[12:16]
+    eng.apply_arm_trajectory(
+        m.ArmTrajectory(
+            stamp=0.0,
+            t=np.array([0.5, 2.0]),
+            q=np.stack([q0, q_reach]),
+            dq=np.zeros((2, 4)),
+            kp=np.full(4, 60.0),
+            kd=np.full(4, 2.0),
+        )  # fmt: skip
+    )
+    run.stand()
+    run.until(3.0)
+    assert np.abs(run.plant.lowstate.joints.q[12:16] - q_reach).max() < 0.1
+    run.walk((0.4, 0.0, 0.0), 6.0)
+    assert not run.fell
+    assert run.lin_rmse <= 0.15
