@@ -38,6 +38,7 @@ import mujoco
 import numpy as np
 from quadmanip.common import messages as msg
 from quadmanip.common import robot_description as rd
+from quadmanip.common.config import load_config
 from quadmanip.sim.engine import standing_data
 
 SCENARIO = "paper-1"
@@ -57,7 +58,7 @@ def bench_physics(sim_seconds: float = 5.0) -> dict[str, Any]:
     world = load_world(SCENARIO)
     eng = SimEngine(
         world,
-        SimConfig(),
+        load_config(SimConfig, "sim"),
         data=standing_data(world),
         cameras=False,
         lidar=False,
@@ -89,6 +90,7 @@ def bench_physics(sim_seconds: float = 5.0) -> dict[str, Any]:
 
 
 def bench_render(frames: int = 20) -> dict[str, Any]:
+    from quadmanip.sim.engine import SimConfig
     from quadmanip.sim.node import load_world
     from quadmanip.sim.sensors import CameraConfig, RgbdRenderer
 
@@ -97,7 +99,7 @@ def bench_render(frames: int = 20) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for w, h in ((320, 240), (640, 480)):
         cams = {c: CameraConfig(width=w, height=h) for c in rd.CAMERAS}
-        r = RgbdRenderer(world.model, cams)
+        r = RgbdRenderer(world.model, cams, render=load_config(SimConfig, "sim").sensors.render)
         per_cam = {}
         for cam in rd.CAMERAS:
             r.render(d, cam)  # warm-up (shader compile, buffers)

@@ -207,7 +207,9 @@ class SimEngine:
     def ensure_renderer(self) -> RgbdRenderer | None:
         """Create the GL renderer lazily, in the thread that steps the engine."""
         if self.renderer is None and self._want_cameras:
-            self.renderer = RgbdRenderer(self.model, self.camera_cfg)
+            self.renderer = RgbdRenderer(
+                self.model, self.camera_cfg, render=self.config.sensors.render
+            )
         return self.renderer
 
     @property

@@ -70,10 +70,24 @@ class LidarConfig:
 
 
 @dataclass(frozen=True)
+class RenderConfig:
+    """``[sensors.render]``: tessellation of MuJoCo's built-in shapes in camera images.
+
+    Fewer slices/stacks/quads than MuJoCo's defaults (28/16/4) cut software-rendering time
+    by about a fifth with no visible difference at 320x240 (measured, docs/sim.md).
+    """
+
+    numslices: int = 12
+    numstacks: int = 8
+    numquads: int = 1
+
+
+@dataclass(frozen=True)
 class SensorsConfig:
     """All sensors (section ``[sensors]`` of configs/sim.toml)."""
 
     seed: int = 0
+    render: RenderConfig = RenderConfig()
     imu: ImuConfig = ImuConfig()
     front_camera: CameraConfig = CameraConfig()
     gripper_camera: CameraConfig = CameraConfig()
@@ -213,6 +227,7 @@ class RgbdRenderer:
         model: mujoco.MjModel,
         cameras: dict[str, CameraConfig],
         base_body: str = "base",
+        render: RenderConfig | None = None,
     ) -> None:
         self.model = model
         self.cameras = dict(cameras)
@@ -223,6 +238,10 @@ class RgbdRenderer:
         model.vis.global_.offheight = max(int(model.vis.global_.offheight), h)
         model.vis.quality.offsamples = 0  # no MSAA: a large cost in software GL
         model.vis.quality.shadowsize = 0
+        rc = render or RenderConfig()
+        model.vis.quality.numslices = rc.numslices
+        model.vis.quality.numstacks = rc.numstacks
+        model.vis.quality.numquads = rc.numquads
         self._cam_ids = {}
         for name in cameras:
             cid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, name)
