@@ -1,0 +1,569 @@
+"""Decoded quadmanip messages → Rerun archetypes (no transport: pure functions + small state).
+
+Every ``log_*`` function takes a decoded message and a ``rr.RecordingStream``, sets the
+robot-time timeline (:data:`TIMELINE`, seconds of the message's ``stamp``) on the calling
+thread and logs under a fixed entity tree, so a recording from any run opens with the
+same layout (:func:`blueprint`)::
+
+    world                         z-up, x forward (the sim's world; odom starts there)
+    world/odom/base               estimated base pose (locomotion/odometry)
+    world/odom/base/<camera>      base_T_camera + Pinhole(K); ./rgb, ./depth
+    world/odom/base/lidar/scan    2D LiDAR returns (lidar frame; mount from the description)
+    world/odom/trajectory         odometry trail; world/odom/mpc_prediction the MPC horizon
+    world/gt/...                  GROUND TRUTH (sim only): base, base_trajectory, objects,
+                                  contacts — its own tree, never mixed with estimates
+    plots/...                     time series: joints, IMU, gripper, velocity (cmd/odom/gt),
+                                  locomotion (foot forces, gait phase, contact, MPC solve ms)
+    log/...                       text logs: judge verdicts, heartbeats (state changes), viz
+
+Quaternions arrive [w, x, y, z] on the wire (conventions.md) and go to Rerun as [x, y, z, w].
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections import deque
+from collections.abc import Sequence
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+from quadmanip.common import messages as m
+
+__all__ = [
+    "BASE",
+    "EveryNth",
+    "FOOT_NAMES",
+    "GT",
+    "LOG",
+    "ODOM",
+    "PLOTS",
+    "WORLD",
+    "JOINT_NAMES",
+    "TIMELINE",
+    "HeartbeatTracker",
+    "RateLimiter",
+    "Trail",
+    "VelocityFromPoses",
+    "blueprint",
+    "camera_entity",
+    "log_gt_base",
+    "log_gt_contacts",
+    "log_gt_objects",
+    "log_heartbeat",
+    "log_judge",
+    "log_lidar_mount",
+    "log_locomotion_debug",
+    "log_lowstate",
+    "log_odometry",
+    "log_rgbd",
+    "log_scan",
+    "log_static_layout",
+    "log_text",
+    "log_trail",
+    "log_velocity_command",
+    "log_velocity_estimate",
+    "quat_xyzw",
+    "scan_points",
+    "set_time",
+]
+
+TIMELINE = "robot_time"
+"""The timeline every message is logged on: its ``stamp`` (robot time, s)."""
+
+WORLD = "world"
+ODOM = "world/odom"
+BASE = "world/odom/base"
+GT = "world/gt"
+PLOTS = "plots"
+LOG = "log"
+
+# Joint order on the wire (messages.py): legs FL, FR, RL, RR (abad, hip, knee), arm j1..j4.
+# Spelled out rather than imported from robot_description, which pulls in MuJoCo.
+FOOT_NAMES: tuple[str, ...] = ("FL", "FR", "RL", "RR")
+JOINT_NAMES: tuple[str, ...] = tuple(
+    f"{leg}_{k}" for leg in FOOT_NAMES for k in ("abad", "hip", "knee")
+) + ("arm_j1", "arm_j2", "arm_j3", "arm_j4")
+
+_FOOT_COLORS = np.array(
+    [[230, 60, 60], [60, 160, 230], [240, 170, 30], [90, 190, 90]], dtype=np.uint8
+)
+_GT_COLOR = np.array([255, 200, 0], dtype=np.uint8)  # ground truth: always amber
+_ODOM_COLOR = np.array([40, 140, 255], dtype=np.uint8)
+_MPC_COLOR = np.array([200, 60, 220], dtype=np.uint8)
+_ENTITY_RE = re.compile(r"[^A-Za-z0-9_\-]")
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def set_time(rec: rr.RecordingStream, stamp: float) -> None:
+    """Put the calling thread's :data:`TIMELINE` at ``stamp`` (Rerun's time is per thread)."""
+    rec.set_time(TIMELINE, duration=float(stamp))
+
+
+def quat_xyzw(q_wxyz: Sequence[float] | np.ndarray) -> rr.Quaternion:
+    """Wire quaternion [w, x, y, z] → Rerun quaternion (stored [x, y, z, w])."""
+    w, x, y, z = (float(v) for v in q_wxyz)
+    return rr.Quaternion(xyzw=[x, y, z, w])
+
+
+def _rot_wxyz(q: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a [w, x, y, z] quaternion (normalised first)."""
+    w, x, y, z = np.asarray(q, dtype=float) / float(np.linalg.norm(q))
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def _yaw_wxyz(q: np.ndarray) -> float:
+    w, x, y, z = (float(v) for v in q)
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def camera_entity(camera: str) -> str:
+    """Entity path of a camera (``front_camera`` → ``world/odom/base/front_camera``)."""
+    name = _ENTITY_RE.sub("_", camera.strip()) or "camera"
+    return f"{BASE}/{name}"
+
+
+def log_text(rec: rr.RecordingStream, path: str, stamp: float, text: str, level: str) -> None:
+    """One :class:`rr.TextLog` line at ``path`` (level: INFO, WARN, ERROR ...)."""
+    set_time(rec, stamp)
+    rec.log(path, rr.TextLog(text, level=level))
+
+
+# --------------------------------------------------------------------------- static layout
+
+
+def log_static_layout(rec: rr.RecordingStream) -> None:
+    """Static parts of the tree: world axes convention, series names, per-series colours.
+
+    Logged once at start; the time series then carry bare :class:`rr.Scalars` batches whose
+    i-th value is the i-th named series.
+    """
+    rec.log(WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    rec.log(
+        f"{GT}",
+        rr.TextDocument("GROUND TRUTH from the simulator (not seen by services)"),
+        static=True,
+    )
+    rec.log(BASE, rr.TransformAxes3D(0.25), static=True)
+    rec.log(f"{GT}/base", rr.TransformAxes3D(0.2), static=True)
+    for quantity in ("position", "velocity", "torque"):
+        rec.log(f"{PLOTS}/joints/{quantity}", rr.SeriesLines(names=list(JOINT_NAMES)), static=True)
+    rec.log(f"{PLOTS}/imu/angular_velocity", rr.SeriesLines(names=["wx", "wy", "wz"]), static=True)
+    rec.log(
+        f"{PLOTS}/imu/linear_acceleration", rr.SeriesLines(names=["ax", "ay", "az"]), static=True
+    )
+    for what in ("foot_force_z", "gait_phase", "contact"):
+        rec.log(
+            f"{PLOTS}/locomotion/{what}",
+            rr.SeriesLines(names=list(FOOT_NAMES), colors=_FOOT_COLORS),
+            static=True,
+        )
+    colors = {"cmd": [150, 150, 150], "odom": _ODOM_COLOR, "gt": _GT_COLOR}
+    for axis in ("vx", "vy", "wz"):
+        for source, color in colors.items():
+            rec.log(
+                f"{PLOTS}/velocity/{axis}/{source}",
+                rr.SeriesLines(names=[f"{axis} {source}"], colors=[color]),
+                static=True,
+            )
+
+
+def blueprint() -> rrb.Blueprint:
+    """Default viewer layout: 3D world | cameras | plots, text logs below."""
+    return rrb.Blueprint(
+        rrb.Vertical(
+            rrb.Horizontal(
+                rrb.Spatial3DView(origin=WORLD, name="world (odom + ground truth)"),
+                rrb.Vertical(
+                    rrb.Spatial2DView(origin=camera_entity("front_camera"), name="front camera"),
+                    rrb.Spatial2DView(
+                        origin=camera_entity("gripper_camera"), name="gripper camera"
+                    ),
+                ),
+                rrb.Tabs(
+                    rrb.TimeSeriesView(origin=f"{PLOTS}/velocity", name="velocity"),
+                    rrb.TimeSeriesView(origin=f"{PLOTS}/locomotion", name="locomotion"),
+                    rrb.TimeSeriesView(origin=f"{PLOTS}/joints", name="joints"),
+                    rrb.TimeSeriesView(origin=f"{PLOTS}/imu", name="imu"),
+                    rrb.TimeSeriesView(origin=f"{PLOTS}/gripper", name="gripper"),
+                ),
+                column_shares=[2, 1, 2],
+            ),
+            rrb.TextLogView(origin=LOG, name="log"),
+            row_shares=[4, 1],
+        ),
+        collapse_panels=True,
+    )
+
+
+# --------------------------------------------------------------------------- robot state
+
+
+def log_lowstate(rec: rr.RecordingStream, msg: m.LowState) -> None:
+    """Joint positions/velocities/torques (16 series each), gripper gap/effort, IMU rates."""
+    set_time(rec, msg.stamp)
+    js = msg.joints
+    rec.log(f"{PLOTS}/joints/position", rr.Scalars(js.q))
+    rec.log(f"{PLOTS}/joints/velocity", rr.Scalars(js.dq))
+    rec.log(f"{PLOTS}/joints/torque", rr.Scalars(js.tau))
+    rec.log(f"{PLOTS}/gripper/gap", rr.Scalars(js.gripper_gap))
+    rec.log(f"{PLOTS}/gripper/effort", rr.Scalars(js.gripper_effort))
+    rec.log(f"{PLOTS}/imu/angular_velocity", rr.Scalars(msg.imu.angular_velocity))
+    rec.log(f"{PLOTS}/imu/linear_acceleration", rr.Scalars(msg.imu.linear_acceleration))
+
+
+def log_odometry(rec: rr.RecordingStream, msg: m.Odometry) -> None:
+    """Estimated base pose → transform of :data:`BASE`; base-frame velocity → plots."""
+    set_time(rec, msg.stamp)
+    rec.log(
+        BASE,
+        rr.Transform3D(translation=msg.position, quaternion=quat_xyzw(msg.orientation)),
+    )
+    log_velocity_estimate(
+        rec,
+        "odom",
+        msg.stamp,
+        float(msg.linear_velocity[0]),
+        float(msg.linear_velocity[1]),
+        float(msg.angular_velocity[2]),
+    )
+
+
+def log_velocity_estimate(
+    rec: rr.RecordingStream, source: str, stamp: float, vx: float, vy: float, wz: float
+) -> None:
+    """Base-frame (vx, vy, wz) of one source (``cmd``, ``odom``, ``gt``) on shared plots, so
+    commanded, estimated and true velocity overlay in one view per axis."""
+    set_time(rec, stamp)
+    for axis, value in (("vx", vx), ("vy", vy), ("wz", wz)):
+        rec.log(f"{PLOTS}/velocity/{axis}/{source}", rr.Scalars(value))
+
+
+def log_velocity_command(rec: rr.RecordingStream, msg: m.BodyVelocityCommand) -> None:
+    """The body velocity command (locomotion/cmd_vel) as the ``cmd`` velocity series."""
+    log_velocity_estimate(rec, "cmd", msg.stamp, msg.vx, msg.vy, msg.wz)
+
+
+def log_trail(
+    rec: rr.RecordingStream,
+    path: str,
+    stamp: float,
+    points: np.ndarray,
+    *,
+    color: Sequence[int] | np.ndarray = _ODOM_COLOR,
+) -> None:
+    """A trajectory as one line strip (``points`` N×3 in the parent frame); < 2 points: no-op."""
+    if len(points) < 2:
+        return
+    set_time(rec, stamp)
+    rec.log(
+        path, rr.LineStrips3D([np.asarray(points, dtype=np.float32)], colors=[color], radii=0.01)
+    )
+
+
+def log_locomotion_debug(rec: rr.RecordingStream, msg: m.LocomotionDebug) -> None:
+    """Foot forces (vertical component, N, ground on robot), gait phase, scheduled
+    contact, MPC solve time, and the MPC's predicted base positions over the horizon as a
+    line in the odom frame (the estimator's frame, where the MPC plans)."""
+    set_time(rec, msg.stamp)
+    rec.log(f"{PLOTS}/locomotion/foot_force_z", rr.Scalars(msg.foot_forces[:, 2]))
+    rec.log(f"{PLOTS}/locomotion/gait_phase", rr.Scalars(msg.gait_phase))
+    rec.log(f"{PLOTS}/locomotion/contact", rr.Scalars(msg.contact.astype(np.float64)))
+    rec.log(f"{PLOTS}/locomotion/mpc_solve_ms", rr.Scalars(msg.mpc_solve_ms))
+    pred = msg.mpc_predicted_positions
+    if len(pred) >= 2:
+        rec.log(
+            f"{ODOM}/mpc_prediction",
+            rr.LineStrips3D([pred.astype(np.float32)], colors=[_MPC_COLOR], radii=0.008),
+        )
+
+
+# --------------------------------------------------------------------------- sensors
+
+
+def log_rgbd(
+    rec: rr.RecordingStream,
+    msg: m.RgbdImage,
+    *,
+    rgb: bool = True,
+    depth: bool = True,
+    jpeg_quality: int = 0,
+) -> str:
+    """A camera frame: base_T_camera transform, Pinhole from K (OpenCV optical frame: RDF),
+    RGB image (raw, or JPEG if ``jpeg_quality`` in 1..100) and metric depth image.
+
+    Returns the camera's entity path.
+    """
+    path = camera_entity(msg.camera)
+    h, w = msg.depth.shape
+    set_time(rec, msg.stamp)
+    rec.log(path, rr.Transform3D(translation=msg.position, quaternion=quat_xyzw(msg.orientation)))
+    rec.log(
+        path,
+        rr.Pinhole(
+            image_from_camera=msg.K,
+            resolution=[w, h],
+            camera_xyz=rr.ViewCoordinates.RDF,
+            image_plane_distance=0.2,
+        ),
+    )
+    if rgb and msg.rgb.size:
+        image = rr.Image(msg.rgb, color_model="RGB")
+        if 0 < jpeg_quality <= 100:
+            image = image.compress(jpeg_quality=jpeg_quality)
+        rec.log(f"{path}/rgb", image)
+    if depth:
+        # 0 = no return on the wire, which Rerun also treats as invalid.
+        rec.log(f"{path}/depth", rr.DepthImage(msg.depth, meter=1.0))
+    return path
+
+
+def scan_points(msg: m.LaserScan) -> np.ndarray:
+    """Valid LiDAR returns as N×3 points in the ``lidar`` frame (z = 0).
+
+    A ray counts when ``range_min <= r <= range_max`` and r > 0 (0 means no return).
+    """
+    r = msg.ranges.astype(np.float64)
+    angles = msg.angle_min + msg.angle_increment * np.arange(r.size)
+    ok = (r > 0.0) & (r >= msg.range_min) & (r <= msg.range_max)
+    pts = np.zeros((int(ok.sum()), 3), dtype=np.float32)
+    pts[:, 0] = r[ok] * np.cos(angles[ok])
+    pts[:, 1] = r[ok] * np.sin(angles[ok])
+    return pts
+
+
+def log_lidar_mount(
+    rec: rr.RecordingStream, position: Sequence[float], orientation_wxyz: Sequence[float]
+) -> None:
+    """Static base_T_lidar (from the robot description) so scans sit where the sensor is."""
+    rec.log(
+        f"{BASE}/lidar",
+        rr.Transform3D(translation=list(position), quaternion=quat_xyzw(orientation_wxyz)),
+        static=True,
+    )
+
+
+def log_scan(rec: rr.RecordingStream, msg: m.LaserScan) -> int:
+    """LiDAR returns as Points3D under ``world/odom/base/lidar/scan``; returns the count."""
+    pts = scan_points(msg)
+    set_time(rec, msg.stamp)
+    rec.log(f"{BASE}/lidar/scan", rr.Points3D(pts, radii=0.015, colors=[[255, 80, 80]]))
+    return len(pts)
+
+
+# --------------------------------------------------------------------------- ground truth
+
+
+def log_gt_base(rec: rr.RecordingStream, msg: m.GroundTruthPoses) -> None:
+    """GROUND TRUTH base pose (entry named ``base``) → transform of ``world/gt/base``."""
+    if "base" not in msg.names:
+        return
+    i = msg.names.index("base")
+    set_time(rec, msg.stamp)
+    rec.log(
+        f"{GT}/base",
+        rr.Transform3D(translation=msg.positions[i], quaternion=quat_xyzw(msg.orientations[i])),
+    )
+
+
+def log_gt_objects(rec: rr.RecordingStream, msg: m.GroundTruthPoses) -> None:
+    """GROUND TRUTH object positions, labelled with their names, as one Points3D batch."""
+    set_time(rec, msg.stamp)
+    rec.log(
+        f"{GT}/objects",
+        rr.Points3D(
+            msg.positions.astype(np.float32),
+            labels=list(msg.names),
+            radii=0.03,
+            colors=[_GT_COLOR],
+            show_labels=True,
+        ),
+    )
+
+
+def log_gt_contacts(
+    rec: rr.RecordingStream, msg: m.GroundTruthContacts, newton_to_m: float = 0.002
+) -> None:
+    """GROUND TRUTH contact forces on ``body1`` as arrows at the contact points."""
+    set_time(rec, msg.stamp)
+    labels = [f"{a}|{b}" for a, b in zip(msg.body1, msg.body2, strict=True)]
+    rec.log(
+        f"{GT}/contacts",
+        rr.Arrows3D(
+            origins=msg.positions.astype(np.float32),
+            vectors=(msg.forces * newton_to_m).astype(np.float32),
+            labels=labels,
+            colors=[_GT_COLOR],
+            show_labels=False,
+        ),
+    )
+
+
+def log_judge(rec: rr.RecordingStream, msg: m.JudgeReport) -> None:
+    """The judge's verdict as a text line and an ``in_place`` count series."""
+    text = (
+        f"judge t={msg.trial_time:.1f}s: {len(msg.in_place)}/{msg.total} in place"
+        f" | in place: {', '.join(msg.in_place) or '-'}"
+        f" | misplaced: {', '.join(msg.misplaced) or '-'}"
+    )
+    log_text(rec, f"{LOG}/judge", msg.stamp, text, "INFO")
+    rec.log(f"{PLOTS}/judge/in_place", rr.Scalars(float(len(msg.in_place))))
+
+
+# --------------------------------------------------------------------------- heartbeats
+
+
+_HEARTBEAT_LEVEL = {
+    "starting": "INFO",
+    "running": "INFO",
+    "stopping": "INFO",
+    "stopped": "INFO",
+    "degraded": "WARN",
+    "failed": "ERROR",
+}
+
+
+class HeartbeatTracker:
+    """Remembers each service's last heartbeat, so only news is logged: first sight, a
+    state change, a sequence gap (missed beats) or a restart (seq went back)."""
+
+    def __init__(self) -> None:
+        self._last: dict[str, tuple[int, str]] = {}
+
+    def news(self, msg: m.Heartbeat) -> tuple[str, str] | None:
+        """(text, level) worth a log line, or None for a routine beat."""
+        prev = self._last.get(msg.service)
+        self._last[msg.service] = (msg.seq, msg.state)
+        level = _HEARTBEAT_LEVEL.get(msg.state, "WARN")
+        if prev is None:
+            return f"{msg.service}: {msg.state} (seq {msg.seq})", level
+        seq, state = prev
+        if msg.seq < seq:
+            return f"{msg.service}: restarted, now {msg.state} (seq {msg.seq})", "WARN"
+        if msg.state != state:
+            return f"{msg.service}: {state} -> {msg.state}", level
+        if msg.seq > seq + 1:
+            return f"{msg.service}: missed {msg.seq - seq - 1} heartbeat(s)", "WARN"
+        return None
+
+    @property
+    def services(self) -> dict[str, str]:
+        """Service → last reported state."""
+        return {k: v[1] for k, v in self._last.items()}
+
+
+def log_heartbeat(rec: rr.RecordingStream, msg: m.Heartbeat, tracker: HeartbeatTracker) -> bool:
+    """Log a heartbeat line under ``log/heartbeat/<service>`` if it is news; True if logged."""
+    news = tracker.news(msg)
+    if news is None:
+        return False
+    text, level = news
+    name = _ENTITY_RE.sub("_", msg.service) or "unknown"
+    log_text(rec, f"{LOG}/heartbeat/{name}", msg.stamp, text, level)
+    return True
+
+
+# --------------------------------------------------------------------------- throttling
+
+
+class RateLimiter:
+    """Lets a stream through at most ``rate`` times per second of ROBOT time (the stamps),
+    so decimation is the same whether the sim runs in real time or lockstep.
+
+    ``rate <= 0`` lets everything through. A stamp that jumps back (sim restart) resets it.
+    """
+
+    def __init__(self, rate: float) -> None:
+        self.period = 1.0 / rate if rate > 0 else 0.0
+        self._last: float | None = None
+
+    def allow(self, stamp: float) -> bool:
+        """Whether a message stamped ``stamp`` should be logged (and, if so, record it)."""
+        if self._last is not None and stamp < self._last - 1e-9:
+            self._last = None  # time went backwards: a new run
+        if self._last is not None and stamp - self._last < self.period - 1e-9:
+            return False
+        self._last = stamp
+        return True
+
+
+class EveryNth:
+    """Lets every ``n``-th message through (the first one included): image throttling."""
+
+    def __init__(self, n: int) -> None:
+        self.n = max(1, int(n))
+        self._count = 0
+
+    def allow(self) -> bool:
+        """Whether this message is one to keep."""
+        keep = self._count % self.n == 0
+        self._count += 1
+        return keep
+
+
+class Trail:
+    """A bounded trajectory: points closer than ``min_spacing`` to the last are skipped,
+    the oldest are forgotten beyond ``max_points``."""
+
+    def __init__(self, max_points: int = 5000, min_spacing: float = 0.01) -> None:
+        self._points: deque[np.ndarray] = deque(maxlen=max(2, max_points))
+        self.min_spacing = min_spacing
+
+    def add(self, p: Sequence[float] | np.ndarray) -> bool:
+        """Append ``p`` if it moved far enough; True if added."""
+        q = np.asarray(p, dtype=np.float64)[:3]
+        if self._points and float(np.linalg.norm(q - self._points[-1])) < self.min_spacing:
+            return False
+        self._points.append(q)
+        return True
+
+    def clear(self) -> None:
+        self._points.clear()
+
+    def __len__(self) -> int:
+        return len(self._points)
+
+    def array(self) -> np.ndarray:
+        """N×3 array of the kept points."""
+        return np.array(self._points, dtype=np.float64).reshape(-1, 3)
+
+
+class VelocityFromPoses:
+    """Base-frame (vx, vy, wz) by finite differences of successive poses (the sim's
+    ground-truth base pose has no velocity field); differences over less than ``min_dt``
+    of robot time are skipped so 50 Hz pose jitter does not become velocity noise.
+
+    ``wz`` is the yaw rate, equal to the body z rate for a level base (a trotting body
+    rolls/pitches a few degrees: error of order 1 - cos(tilt), well under 1 %)."""
+
+    def __init__(self, min_dt: float = 0.05) -> None:
+        self.min_dt = min_dt
+        self._prev: tuple[float, np.ndarray, float] | None = None
+
+    def update(
+        self, stamp: float, position: np.ndarray, orientation_wxyz: np.ndarray
+    ) -> tuple[float, float, float] | None:
+        """Feed a pose; returns (vx, vy, wz) in the base frame when enough time passed."""
+        p = np.asarray(position, dtype=np.float64)
+        yaw = _yaw_wxyz(orientation_wxyz)
+        if self._prev is None or stamp < self._prev[0]:
+            self._prev = (stamp, p, yaw)
+            return None
+        t0, p0, yaw0 = self._prev
+        dt = stamp - t0
+        if dt < self.min_dt:
+            return None
+        self._prev = (stamp, p, yaw)
+        v_world = (p - p0) / dt
+        v_base = _rot_wxyz(orientation_wxyz).T @ v_world
+        dyaw = math.atan2(math.sin(yaw - yaw0), math.cos(yaw - yaw0))
+        return float(v_base[0]), float(v_base[1]), dyaw / dt
