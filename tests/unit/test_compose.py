@@ -15,10 +15,28 @@ pytestmark = pytest.mark.unit
 ROOT = Path(__file__).resolve().parents[2]
 
 
+class _StrictLoader(yaml.SafeLoader):
+    """PyYAML keeps the last of two equal keys silently; a duplicated service must fail."""
+
+    def construct_mapping(self, node, deep=False):
+        keys = [k.value for k, _ in node.value if k.tag != "tag:yaml.org,2002:merge"]
+        dup = {k for k in keys if keys.count(k) > 1}
+        if dup:
+            raise yaml.constructor.ConstructorError(
+                None, None, f"duplicate keys {sorted(dup)}", node.start_mark
+            )
+        return super().construct_mapping(node, deep=deep)
+
+
 @pytest.fixture(scope="module")
 def compose() -> dict:
     with (ROOT / "compose.yaml").open() as fh:
-        return yaml.safe_load(fh)
+        return yaml.load(fh, Loader=_StrictLoader)  # noqa: S506 - a SafeLoader subclass
+
+
+def test_strict_loader_rejects_duplicate_keys():
+    with pytest.raises(yaml.constructor.ConstructorError, match="duplicate"):
+        yaml.load("services:\n  a: 1\n  a: 2\n", Loader=_StrictLoader)  # noqa: S506
 
 
 def test_services_match_registry(compose):
