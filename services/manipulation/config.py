@@ -59,6 +59,8 @@ class GraspConfig:
     max_lateral_shift: float = 0.06
     max_forward_shift: float = 0.06
     max_crouch: float = 0.10
+    # How much taller than nominal the body may stand to reach a high region (m).
+    max_rise: float = 0.06
     # Lift after the grasp (m) and hold-to-verify time (s).
     lift_height: float = 0.10
     verify_time: float = 0.3

@@ -22,7 +22,7 @@ from quadmanip.services.manipulation.arm_kinematics import (
     target_from_base_pose,
 )
 from quadmanip.services.manipulation.config import ManipulationConfig
-from quadmanip.services.manipulation.grasp import GraspRejected, _line, _reachable
+from quadmanip.services.manipulation.grasp import GraspRejected, _line, _reachable, _wrist_roll
 from quadmanip.services.manipulation.gripper import GraspMonitor, GripState
 from quadmanip.services.manipulation.primitive import (
     BodyPoseRequest,
@@ -56,8 +56,13 @@ def plan_place(
     q_now: np.ndarray,
     hang: float,
     body: BodyPoseRequest | None = None,
+    yaw: float | None = None,
 ) -> PlacePlan:
-    """Computes and checks the place poses; raises :class:`GraspRejected` with a reason."""
+    """Computes and checks the place poses; raises :class:`GraspRejected` with a reason.
+
+    ``yaw`` turns the gripper (same convention as the grasp: ``yaw = 0`` fingers along the
+    body y axis) so a long object fits a narrow region; None keeps the grasp's roll.
+    """
     g = cfg.grasp
     body = body or BodyPoseRequest()
     p = np.asarray(position_base, dtype=float)
@@ -73,20 +78,29 @@ def plan_place(
         )
     now = fk_tcp(geom, q_now)
     pitch, roll = now.pitch, float(q_now[3])
-    z_rel = target.z + hang + g.place_release_z
+    if yaw is not None:
+        if not math.isfinite(yaw):
+            raise GraspRejected("invalid_goal", "yaw must be finite")
+        roll = _wrist_roll(geom, -yaw)
     why = ""
-    # keep the grasp's pitch if possible; tilt the tool forward (up to 0.6 rad) for far regions
-    for tilt in np.arange(0.0, 0.61, 0.1):
-        pt = pitch - tilt if pitch > 0.3 else pitch
-        release = ArmTarget(target.x, z_rel, pt, roll)
-        transit = ArmTarget(target.x, z_rel + TRANSIT_CLEARANCE, pt, roll)
-        retract = ArmTarget(target.x, z_rel + g.retract_height, pt, roll)
-        why = _reachable(geom, [*_line(transit, release, 6), *_line(release, retract, 6)], q_now)
-        if not why:
-            off = BodyPoseRequest(body.x_offset, y_total, body.z_offset)
-            return PlacePlan(off, transit, release, retract)
-        if pitch <= 0.3:
-            break
+    # keep the grasp's pitch if possible; tilt the tool forward (up to 0.6 rad) and stand up
+    # taller (body z, up to max_rise) for far or high regions
+    for rise in (0.0, 0.5 * g.max_rise, g.max_rise):
+        z_rel = target.z - rise + hang + g.place_release_z
+        for tilt in np.arange(0.0, 0.61, 0.1):
+            pt = pitch - tilt if pitch > 0.3 else pitch
+            release = ArmTarget(target.x, z_rel, pt, roll)
+            # approach and retract as high as reachable, at least 4 cm (fingertips clear)
+            for up in (g.retract_height, 0.07, 0.04):
+                transit = ArmTarget(target.x, z_rel + min(up, TRANSIT_CLEARANCE), pt, roll)
+                retract = ArmTarget(target.x, z_rel + up, pt, roll)
+                lines = [*_line(transit, release, 6), *_line(release, retract, 6)]
+                why = _reachable(geom, lines, q_now)
+                if not why:
+                    off = BodyPoseRequest(body.x_offset, y_total, body.z_offset + rise)
+                    return PlacePlan(off, transit, release, retract)
+            if pitch <= 0.3:
+                break
     raise GraspRejected("unreachable", f"place pose: {why}")
 
 

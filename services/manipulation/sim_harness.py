@@ -38,7 +38,17 @@ from quadmanip.services.manipulation.primitive import (
 from quadmanip.sim.actuators import ActuatorConfig, ActuatorLayer
 from quadmanip.sim.world.objects import add_object, load_catalogue
 
-__all__ = ["Box", "GraspSpec", "PlacedObject", "SimHarness", "grasp_from_ground_truth"]
+__all__ = [
+    "Box",
+    "GraspSpec",
+    "PlacedObject",
+    "SimHarness",
+    "container_boxes",
+    "container_inner",
+    "drawer_world",
+    "grasp_from_ground_truth",
+    "table_boxes",
+]
 
 LEG_JOINTS = tuple(
     f"{leg}_{j}" for leg in ("FL", "FR", "RL", "RR") for j in ("abad", "hip", "knee")
@@ -437,3 +447,78 @@ def grasp_from_ground_truth(
     pt = p.copy()
     pt[2] = surface_z + min(0.05, max(0.02, 0.5 * spec.size[2]))
     return GraspSpec(h.world_to_base(pt), "horizontal", 0.0, float(2 * ext[1]))
+
+
+# --------------------------------------------------------------------------- test scenes
+TABLE_HEIGHT = 0.40  # the house's tables (configs/house.toml)
+
+
+def table_boxes(x_near: float = 0.27, length: float = 0.6, width: float = 0.8) -> list[Box]:
+    """A table top slab (top at TABLE_HEIGHT) whose near edge is ``x_near`` ahead of the base."""
+    return [
+        Box(
+            "table",
+            (x_near + length / 2, 0.0, TABLE_HEIGHT - 0.015),
+            (length / 2, width / 2, 0.015),
+        )
+    ]
+
+
+def container_boxes(place: str, center_x: float, surface_z: float = 0.0) -> list[Box]:
+    """An open box with the size, wall and bottom of the house's deposit container ``place``,
+    turned so its shorter side faces the robot, centred at (center_x, 0) on ``surface_z``."""
+    from quadmanip.sim.world.house import load_house
+
+    c = next(c for c in load_house().containers if c.name == place)
+    sx, sy, h = c.size
+    if sx > sy:
+        sx, sy = sy, sx
+    ix, iy, t = sx / 2 - c.wall, sy / 2 - c.wall, c.wall
+    z0 = surface_z
+    return [
+        Box(
+            f"{place}_bottom",
+            (center_x, 0.0, z0 + c.bottom / 2),
+            (sx / 2, sy / 2, c.bottom / 2),
+            c.rgba,
+        ),
+        Box(
+            f"{place}_w1", (center_x - ix - t / 2, 0.0, z0 + h / 2), (t / 2, sy / 2, h / 2), c.rgba
+        ),
+        Box(
+            f"{place}_w2", (center_x + ix + t / 2, 0.0, z0 + h / 2), (t / 2, sy / 2, h / 2), c.rgba
+        ),
+        Box(f"{place}_w3", (center_x, -iy - t / 2, z0 + h / 2), (ix, t / 2, h / 2), c.rgba),
+        Box(f"{place}_w4", (center_x, iy + t / 2, z0 + h / 2), (ix, t / 2, h / 2), c.rgba),
+    ]
+
+
+def container_inner(place: str, center_x: float) -> tuple[float, float, float]:
+    """Inner half-extents (x, y) and height of a container placed by :func:`container_boxes`."""
+    from quadmanip.sim.world.house import load_house
+
+    c = next(c for c in load_house().containers if c.name == place)
+    sx, sy, h = c.size
+    if sx > sy:
+        sx, sy = sy, sx
+    return sx / 2 - c.wall, sy / 2 - c.wall, h
+
+
+def drawer_world(which: str, handle_arm_x: float = 0.44, scenario: object | None = None) -> object:
+    """The house with the robot standing square in front of drawer ``which`` (handle
+    ``handle_arm_x`` ahead of the arm mount) - where navigation would have brought it."""
+    import dataclasses
+
+    from quadmanip.sim.world.builder import build_world
+    from quadmanip.sim.world.house import load_house
+
+    house = load_house()
+    empty = build_world(None, robot=False, house=house)
+    d = mujoco.MjData(empty.model)
+    mujoco.mj_forward(empty.model, d)
+    hp = d.body(empty.drawer_handles[which]).xpos.copy()
+    mount_x = float(rd.arm_mount()[0])
+    start = dataclasses.replace(
+        house.robot_start, position=(hp[0] - mount_x - handle_arm_x, hp[1]), yaw=0.0
+    )
+    return build_world(scenario, robot=True, house=dataclasses.replace(house, robot_start=start))  # type: ignore[arg-type]
