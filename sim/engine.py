@@ -181,6 +181,14 @@ class SimEngine:
         self.camera_cfg = dict(zip(CAMERAS, (sc.front_camera, sc.gripper_camera), strict=True))
         self._cam_every = {n: _every(cr, c.rate, n) for n, c in self.camera_cfg.items()}
         self._lidar_every = _every(cr, sc.lidar.rate, "lidar") if lidar else 0
+        # Stagger the expensive sensors inside their period (front camera at phase 0, the
+        # gripper camera half a period later, LiDAR a quarter) so no single tick carries
+        # all the rendering: the longest pause of the control loop is one frame, not two.
+        self._cam_phase = {
+            n: (i * every) // max(len(self._cam_every), 1)
+            for i, (n, every) in enumerate(self._cam_every.items())
+        }
+        self._lidar_phase = self._lidar_every // 4
         gt = config.ground_truth
         self._poses_every = _every(cr, gt.poses_rate, "gt poses") if ground_truth else 0
         self._contacts_every = _every(cr, gt.contacts_rate, "gt contacts") if ground_truth else 0
@@ -279,8 +287,8 @@ class SimEngine:
         return self.observe(sensors=sensors)
 
     # ------------------------------------------------------------- observation
-    def _due(self, every: int) -> bool:
-        return every > 0 and self.tick % every == 0
+    def _due(self, every: int, phase: int = 0) -> bool:
+        return every > 0 and self.tick % every == phase
 
     def low_state(self) -> msg.LowState:
         """Encoders + IMU at the current state (LowState of this tick)."""
@@ -403,9 +411,9 @@ class SimEngine:
             raise ValueError("add_sensors must be called at the tick it observes")
         if self._want_cameras:
             for name, every in self._cam_every.items():
-                if self._due(every):
+                if self._due(every, self._cam_phase[name]):
                     out.images.append(self.render(name))
-        if self._due(self._lidar_every):
+        if self._due(self._lidar_every, self._lidar_phase):
             out.scan = self.scan()
         if self._due(self._poses_every):
             out.gt_poses = self.gt_poses()

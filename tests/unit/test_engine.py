@@ -219,26 +219,32 @@ def test_sensor_schedule_and_outputs(world):
     while eng.time < 1.0 - 1e-9:
         out = eng.step_tick(_hold(eng, out.tick))
         outs.append(out)
+    phase = {"front_camera": 0, "gripper_camera": 25}
     for o in outs:
+        assert len(o.images) <= 1  # the cameras are staggered: one render per tick at most
         for img in o.images:
             counts[img.camera] += 1
-            assert o.tick % 50 == 0
+            assert o.tick % 50 == phase[img.camera]
             assert img.rgb.shape == (240, 320, 3) and img.depth.shape == (240, 320)
             assert img.stamp == o.stamp
-        counts["scan"] += o.scan is not None
+        if o.scan is not None:
+            counts["scan"] += 1
+            assert o.tick % 50 == 12
         counts["poses"] += o.gt_poses is not None
         counts["judge"] += o.judge is not None
-    # Ticks 0..500 of 1 s: 10 Hz sensors fire at ticks 0, 50, ..., 500 (11 times).
+    # Ticks 0..500 of 1 s: 10 Hz sensors fire every 50 ticks, staggered: the front camera
+    # at 0, 50, ..., 500 (11 times), the LiDAR at 12, 62, ... and the gripper camera at
+    # 25, 75, ... (10 times each).
     assert counts == {
         "front_camera": 11,
-        "gripper_camera": 11,
-        "scan": 11,
+        "gripper_camera": 10,
+        "scan": 10,
         "poses": 51,
         "judge": 2,
     }
     gt = outs[-1].gt_poses
     assert gt.names[0] == "base" and set(gt.names[1:]) == set(eng.object_names)
-    scan = outs[-1].scan
+    scan = next(o.scan for o in reversed(outs) if o.scan is not None)
     assert scan.ranges.shape == (360,)
     assert np.all((scan.ranges == 0) | (scan.ranges >= scan.range_min))
     j = outs[-1].judge
