@@ -36,6 +36,11 @@ class VizConfig:
     jpeg_quality: int = 0  # 1..100: JPEG-compress RGB (smaller files); 0 = raw
     scan_every: int = 1  # log every Nth LiDAR scan
 
+    # Place the odom frame in the world from the first odometry/ground-truth pair (display
+    # only; the estimator starts at the odom origin, the robot does not start at the world's).
+    align_odom: bool = True
+    align_max_dt: float = 0.05  # s: largest stamp gap of the pair used
+
     # base_T_lidar; empty = read the `lidar` site from the robot description.
     lidar_position: tuple[float, ...] = ()
     lidar_orientation: tuple[float, ...] = ()  # [w, x, y, z]

@@ -148,6 +148,8 @@ class VizNode(Service):
         self._gt_trail = rl.Trail(cfg.trail_max_points, cfg.trail_min_spacing)
         self._gt_trail_t = 0.0
         self._gt_velocity = rl.VelocityFromPoses()
+        self._gt_pose: tuple[float, np.ndarray, np.ndarray] | None = None
+        self._aligned_at: float | None = None
         self._gt_objects = lim(cfg.gt_rate)
         self._gt_contacts = lim(cfg.gt_rate)
         self._images = {
@@ -246,7 +248,18 @@ class VizNode(Service):
         rl.log_scan(self.rec, msg)
         return True
 
+    def _align_odom(self, msg: m.Odometry) -> None:
+        """Place ``world/odom`` from the latest true base pose close enough in time."""
+        gt = self._gt_pose
+        if gt is None or abs(gt[0] - msg.stamp) > self.config.align_max_dt:
+            return
+        t, yaw = rl.odom_in_world(gt[1], gt[2], msg.position, msg.orientation)
+        rl.log_odom_alignment(self.rec, msg.stamp, t, yaw)
+        self._aligned_at = msg.stamp
+
     def _on_odometry(self, msg: m.Odometry) -> bool:
+        if self.config.align_odom and (self._aligned_at is None or msg.stamp < self._aligned_at):
+            self._align_odom(msg)  # first odometry, or the first of a new run
         if self._odom_trail_rate.allow(msg.stamp):
             if msg.stamp < self._odom_trail_t:  # time went back: a new run
                 self._odom_trail.clear()
@@ -275,6 +288,7 @@ class VizNode(Service):
             return False
         i = msg.names.index("base")
         pos, quat = msg.positions[i], msg.orientations[i]
+        self._gt_pose = (float(msg.stamp), pos, quat)  # read by the odometry thread
         v = self._gt_velocity.update(msg.stamp, pos, quat)
         if v is not None:
             rl.log_velocity_estimate(self.rec, "gt", msg.stamp, *v)

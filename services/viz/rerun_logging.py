@@ -6,6 +6,8 @@ thread and logs under a fixed entity tree, so a recording from any run opens wit
 same layout (:func:`blueprint`)::
 
     world                         z-up, x forward (the sim's world; odom starts there)
+    world/odom                    odom frame; placed in the world from ground truth when
+                                  the sim publishes it (display only), else identity
     world/odom/base               estimated base pose (locomotion/odometry)
     world/odom/base/<camera>      base_T_camera + Pinhole(K); ./rgb, ./depth
     world/odom/base/lidar/scan    2D LiDAR returns (lidar frame; mount from the description)
@@ -56,6 +58,7 @@ __all__ = [
     "log_lidar_mount",
     "log_locomotion_debug",
     "log_lowstate",
+    "log_odom_alignment",
     "log_odometry",
     "log_rgbd",
     "log_scan",
@@ -64,6 +67,7 @@ __all__ = [
     "log_trail",
     "log_velocity_command",
     "log_velocity_estimate",
+    "odom_in_world",
     "quat_xyzw",
     "scan_points",
     "set_time",
@@ -535,6 +539,49 @@ class Trail:
     def array(self) -> np.ndarray:
         """N×3 array of the kept points."""
         return np.array(self._points, dtype=np.float64).reshape(-1, 3)
+
+
+def odom_in_world(
+    gt_position: np.ndarray,
+    gt_orientation: np.ndarray,
+    odom_position: np.ndarray,
+    odom_orientation: np.ndarray,
+) -> tuple[np.ndarray, float]:
+    """world_T_odom as (translation, yaw) from one simultaneous pair of base poses: the
+    true one (world) and the estimated one (odom).
+
+    Planar on purpose: odom's z axis is gravity-aligned like the world's (the estimator
+    takes roll/pitch from the IMU), so only a yaw and a translation separate the frames;
+    a full SE(3) from one sample would tilt the whole odom tree by the estimate's error.
+    """
+    yaw = _yaw_wxyz(gt_orientation) - _yaw_wxyz(odom_orientation)
+    c, s = math.cos(yaw), math.sin(yaw)
+    rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    t = np.asarray(gt_position, dtype=float) - rz @ np.asarray(odom_position, dtype=float)
+    return t, math.atan2(s, c)
+
+
+def log_odom_alignment(
+    rec: rr.RecordingStream, stamp: float, translation: np.ndarray, yaw: float
+) -> None:
+    """Place the odom frame in the world (display only; see :func:`odom_in_world`)."""
+    set_time(rec, stamp)
+    rec.log(
+        ODOM,
+        rr.Transform3D(
+            translation=translation,
+            quaternion=quat_xyzw([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]),
+        ),
+    )
+    rec.log(
+        f"{LOG}/viz",
+        rr.TextLog(
+            "odom frame placed in world from ground truth (display only): "
+            f"t=({translation[0]:.3f}, {translation[1]:.3f}, {translation[2]:.3f}) m, "
+            f"yaw={math.degrees(yaw):.1f} deg",
+            level="INFO",
+        ),
+    )
 
 
 class VelocityFromPoses:

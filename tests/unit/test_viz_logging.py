@@ -395,3 +395,15 @@ def test_ground_truth_velocity_in_the_base_frame() -> None:
     est.update(0.0, np.zeros(3), _quat_z(math.pi - 0.01))
     _, _, wz = est.update(0.1, np.zeros(3), _quat_z(-math.pi + 0.01))
     assert wz == pytest.approx(0.2)
+
+
+def test_odom_in_world_maps_the_estimate_onto_the_truth() -> None:
+    # The robot starts at (0.8, 1.2) facing yaw 0.5 in the world; odom starts at its origin
+    # and the estimate now reads (0.1, 0.0) with yaw 0.2 (e.g. yaw drift of 0.3 rad).
+    p_gt, yaw_gt = np.array([0.8, 1.2, 0.30]), 0.5
+    p_od, yaw_od = np.array([0.1, 0.0, 0.29]), 0.2
+    t, yaw = rl.odom_in_world(p_gt, _quat_z(yaw_gt), p_od, _quat_z(yaw_od))
+    assert yaw == pytest.approx(0.3)
+    c, s = math.cos(yaw), math.sin(yaw)
+    rz = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    np.testing.assert_allclose(rz @ p_od + t, p_gt, atol=1e-12)  # world_T_odom · p_odom

@@ -154,6 +154,15 @@ def test_node_throttles_counts_and_survives_bad_messages(node) -> None:
     for k in range(30):  # odometry and ground truth at 10 Hz for 3 s: walking +x at 0.5 m/s
         t = 0.1 * k
         bus.deliver(
+            "sim/gt/base",
+            m.GroundTruthPoses(
+                stamp=t,
+                names=["base"],
+                positions=[[0.5 * t, 0.01, 0.3]],
+                orientations=[[math.cos(0.05), 0, 0, math.sin(0.05)]],
+            ),
+        )
+        bus.deliver(
             "locomotion/odometry",
             m.Odometry(
                 stamp=t,
@@ -161,15 +170,6 @@ def test_node_throttles_counts_and_survives_bad_messages(node) -> None:
                 orientation=[1, 0, 0, 0],
                 linear_velocity=[0.5, 0, 0],
                 angular_velocity=[0, 0, 0],
-            ),
-        )
-        bus.deliver(
-            "sim/gt/base",
-            m.GroundTruthPoses(
-                stamp=t,
-                names=["base"],
-                positions=[[0.5 * t, 0.01, 0.3]],
-                orientations=[[math.cos(0.05), 0, 0, math.sin(0.05)]],
             ),
         )
     # A message that passed decoding but breaks a converter: counted, not fatal.
@@ -213,6 +213,21 @@ def test_node_throttles_counts_and_survives_bad_messages(node) -> None:
     assert len(vx) >= 10
     np.testing.assert_allclose(vx, 0.5 * math.cos(0.1), rtol=1e-6)
     np.testing.assert_allclose(vy, -0.5 * math.sin(0.1), rtol=1e-6)
+    # The odom frame was placed in the world from the first (gt, odometry) pair at t = 0.
+    tf = [
+        c.to_record_batch()
+        for c in RrdReader(out).store().stream().to_chunks()
+        if c.entity_path == "/world/odom" and not c.is_static
+    ]
+    assert len(tf) == 1 and tf[0].num_rows == 1
+    np.testing.assert_allclose(
+        tf[0].column("Transform3D:translation").to_pylist()[0][0], [0, 0.01, 0], atol=1e-6
+    )
+    np.testing.assert_allclose(  # yaw 0.1 rad, [x, y, z, w]
+        tf[0].column("Transform3D:quaternion").to_pylist()[0][0],
+        [0, 0, math.sin(0.05), math.cos(0.05)],
+        atol=1e-6,
+    )
     # Logging after teardown is refused quietly (the bus may still deliver while closing).
     bus.deliver("sim/lowstate", _lowstate(9.0))
     assert n.stats()["lowstate"].received == 500
