@@ -15,6 +15,7 @@ other traffic).
 from __future__ import annotations
 
 import argparse
+import json
 import subprocess
 import sys
 import threading
@@ -252,7 +253,7 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
 
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
-    for old in out_dir.glob("*.png"):
+    for old in [*out_dir.glob("*.png"), *out_dir.glob("*.rrd")]:
         old.unlink()
     registry = services_registry.available()
     names = [n for n, problem in registry.items() if problem is None]
@@ -268,6 +269,11 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
         file=out,
         flush=True,
     )
+    service_args = {k: list(v) for k, v in DEMO_SERVICE_ARGS.items()}
+    if "viz" in names:
+        # The Rerun recording goes next to the pictures (`rerun FILE.rrd` replays it).
+        rrd = json.dumps(str(out_dir / "quadmanip_{time}.rrd"))
+        service_args.setdefault("viz", []).extend(["--set", f"output={rrd}"])
     stop = threading.Event()
     install_stop_signals(stop)
     tty = out.isatty()
@@ -275,7 +281,7 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
         launcher = Launcher(
             listen=listen,
             services=names,
-            service_args=DEMO_SERVICE_ARGS,
+            service_args=service_args,
             robot=args.robot,
             out=log_file,
         )
@@ -345,6 +351,8 @@ def _verdict(
         print(f"demo: {len(writer.written)} camera images in {writer.out_dir.resolve()}/", file=out)
     elif any(n == "sim" for n in names):
         print("demo: no camera frames arrived", file=out)
+    for rrd in sorted(writer.out_dir.glob("*.rrd")):
+        print(f"demo: Rerun recording {rrd.resolve()} (view it with `rerun {rrd}`)", file=out)
     print(f"demo: service logs in {log_path.resolve()}", file=out)
     print("demo: stopped cleanly" if code == 0 else "demo: finished with errors", file=out)
     return code

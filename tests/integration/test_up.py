@@ -24,7 +24,7 @@ START_TIMEOUT_S = 60.0  # a cold MuJoCo import on a loaded 2-core machine is slo
 class UpProcess:
     """`quadmanip up` as a child of the test, its output collected line by line."""
 
-    def __init__(self, *args: str) -> None:
+    def __init__(self, *args: str, cwd: str | None = None) -> None:
         self.endpoint = free_endpoint()
         env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
         env.pop("QM_ZENOH_CONNECT", None)
@@ -34,6 +34,7 @@ class UpProcess:
             stderr=subprocess.STDOUT,
             text=True,
             env=env,
+            cwd=cwd,  # services that write files (viz recordings) write them there
         )
         self.lines: list[str] = []
         self._cond = threading.Condition()
@@ -76,11 +77,11 @@ def _gone(procs: list[psutil.Process], timeout: float) -> list[psutil.Process]:
 
 
 @pytest.fixture
-def stack():
+def stack(tmp_path):
     ups: list[UpProcess] = []
 
     def start(*args: str) -> UpProcess:
-        up = UpProcess(*args)
+        up = UpProcess(*args, cwd=str(tmp_path))
         ups.append(up)
         assert up.wait_for("running; Ctrl-C", START_TIMEOUT_S), up.output
         return up
@@ -186,6 +187,7 @@ def test_demo_runs_the_stack_and_saves_camera_frames(tmp_path):
         text=True,
         timeout=120,
         env=dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl")),
+        cwd=tmp_path,
     )
     assert result.returncode == 0, result.stdout + result.stderr
     assert "demo: stopped cleanly" in result.stdout
@@ -204,3 +206,5 @@ def test_demo_runs_the_stack_and_saves_camera_frames(tmp_path):
         image = cv2.imread(str(rgb[-1]))
         assert image is not None and image.ndim == 3 and min(image.shape[:2]) >= 32
         assert image.std() > 5.0  # a rendered room, not a blank frame
+    if "viz" in running:
+        assert list(out.glob("*.rrd")), "the viz recording belongs in the demo's --out folder"
