@@ -1,0 +1,104 @@
+"""Planning rejections with reasons, and cancel stopping the arm (in-process physics)."""
+
+import math
+
+import numpy as np
+import pytest
+from quadmanip.services.manipulation.arm_kinematics import ArmGeometry, fk_tcp
+from quadmanip.services.manipulation.config import load_manipulation_config
+from quadmanip.services.manipulation.drawer import plan_drawer
+from quadmanip.services.manipulation.grasp import GraspPrimitive, GraspRejected, plan_grasp
+from quadmanip.services.manipulation.place import plan_place
+from quadmanip.services.manipulation.postures import resolve_postures
+from quadmanip.services.manipulation.primitive import ArmCommand, Status
+from quadmanip.services.manipulation.sim_harness import PlacedObject, SimHarness
+
+pytestmark = pytest.mark.unit
+
+CFG = load_manipulation_config()
+GEOM = ArmGeometry.from_description()
+FLOOR_Z = -0.30  # floor in the body frame when standing (home keyframe)
+
+
+def _reason(fn, *args, **kw) -> str:
+    with pytest.raises(GraspRejected) as err:
+        fn(*args, **kw)
+    return err.value.reason
+
+
+def test_grasp_rejections():
+    ok = np.array([0.36, 0.0, FLOOR_Z + 0.025])
+    assert plan_grasp(GEOM, CFG, ok, "vertical", 0.0, 0.05).approach == "vertical"
+    # 0.2 m to the side: the body cannot shift that far (moveCOM limit)
+    assert (
+        _reason(plan_grasp, GEOM, CFG, ok + [0, 0.2, 0], "vertical", 0.0, 0.05)
+        == "lateral_out_of_range"
+    )
+    # 1 m ahead: out of reach even crouched
+    assert _reason(plan_grasp, GEOM, CFG, ok + [0.7, 0, 0], "vertical", 0.0, 0.05) == "unreachable"
+    # wider than the open gripper
+    assert _reason(plan_grasp, GEOM, CFG, ok, "vertical", 0.0, 0.12) == "too_wide"
+    assert _reason(plan_grasp, GEOM, CFG, ok * np.nan, "vertical", 0.0, 0.05) == "invalid_goal"
+    assert _reason(plan_grasp, GEOM, CFG, ok, "sideways", 0.0, 0.05) == "invalid_goal"
+    # horizontal beyond MANIPULATOR_X_LIM + the body's forward shift
+    far = np.array([0.9, 0.0, 0.1])
+    assert _reason(plan_grasp, GEOM, CFG, far, "horizontal", 0.0, 0.05) == "too_far"
+
+
+def test_vertical_grasp_crouches_only_when_needed():
+    # a table-height object: no crouch
+    high = plan_grasp(GEOM, CFG, np.array([0.36, 0.0, 0.13]), "vertical", 0.0, 0.05)
+    assert high.body_grasp.z_offset == 0.0
+    # floor objects: Algorithm 6 crouches (COM z), the further out the deeper
+    near = plan_grasp(GEOM, CFG, np.array([0.36, 0.0, FLOOR_Z + 0.025]), "vertical", 0.0, 0.05)
+    far = plan_grasp(GEOM, CFG, np.array([0.44, 0.0, FLOOR_Z + 0.025]), "vertical", 0.0, 0.05)
+    assert -CFG.grasp.max_crouch <= far.body_grasp.z_offset < near.body_grasp.z_offset <= 0.0
+    # and shifts the body sideways by the grasp point's y (moveCOM)
+    side = plan_grasp(GEOM, CFG, np.array([0.36, 0.04, FLOOR_Z + 0.025]), "vertical", 0.0, 0.05)
+    assert side.body_ready.y_offset == pytest.approx(0.04)
+    assert side.reach.pitch == pytest.approx(math.pi / 2)
+
+
+def test_horizontal_grasp_shifts_com_beyond_x_lim():
+    p = np.array([0.06 + CFG.grasp.manipulator_x_lim + 0.04, 0.0, 0.10])
+    plan = plan_grasp(GEOM, CFG, p, "horizontal", 0.0, 0.05)
+    assert plan.reach.x == pytest.approx(CFG.grasp.manipulator_x_lim)
+    assert plan.body_grasp.x_offset == pytest.approx(0.04)
+    assert plan.reach.pitch == 0.0
+
+
+def test_place_and_drawer_rejections():
+    q = resolve_postures(GEOM, CFG)["carry"]
+    assert _reason(plan_place, GEOM, CFG, np.array([1.5, 0, 0]), q, 0.05) == "unreachable"
+    assert (
+        _reason(plan_place, GEOM, CFG, np.array([0.4, 0.3, 0]), q, 0.05) == "lateral_out_of_range"
+    )
+    h = np.array([0.5, 0.0, -0.16])
+    sideways = np.array([0.0, 1.0, 0.0])
+    assert _reason(plan_drawer, GEOM, CFG, h, sideways, 0.15) == "pull_direction_unsupported"
+    assert _reason(plan_drawer, GEOM, CFG, h, np.array([-1.0, 0, 0]), -0.1) == "invalid_goal"
+
+
+def test_cancel_holds_the_arm_where_it_is():
+    h = SimHarness([PlacedObject("brick", (0.36, 0.0, 0.026))])
+    h.settle(0.3)
+    plan = plan_grasp(GEOM, CFG, h.world_to_base([0.36, 0.0, 0.025]), "vertical", 0.0, 0.05)
+    prim = GraspPrimitive(GEOM, CFG, plan)
+    kp, kd = CFG.motion.kp, CFG.motion.kd
+    # run until the arm is moving towards the grasp-ready pose, then cancel
+    while prim.progress.text.find("arm above") < 0 or h.data.time < 3.0:
+        h.apply(prim.step(h.observation()), kp, kd)
+        h.step()
+    assert float(np.max(np.abs(h.observation().dq_arm))) > 0.2  # really moving
+    cmds = prim.cancel(h.observation())
+    assert prim.status is Status.CANCELED and prim.done
+    assert len(cmds) == 1 and isinstance(cmds[0], ArmCommand) and len(cmds[0].traj.t) == 1
+    h.apply(cmds, kp, kd)
+    q_cancel = h.observation().q_arm
+    h.settle(1.5)
+    o = h.observation()
+    # the arm stopped: it settles next to where the cancel found it, and stays
+    assert float(np.max(np.abs(o.dq_arm))) < 0.02
+    assert float(np.max(np.abs(o.q_arm - q_cancel))) < 0.15
+    tcp = fk_tcp(GEOM, o.q_arm)
+    assert math.isfinite(tcp.x) and prim.step(o) == []  # a canceled primitive sends nothing
