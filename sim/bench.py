@@ -29,6 +29,7 @@ import socket
 import statistics
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -140,19 +141,26 @@ def bench_full(wall_seconds: float = 20.0, warmup_s: float = 3.0) -> dict[str, A
     env = {**os.environ, "QM_ZENOH_CONNECT": ep, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
     py = sys.executable
     procs: list[subprocess.Popen] = []
+    logs = tempfile.TemporaryDirectory(prefix="qm-bench-sim-")
 
-    def start(*args: str) -> subprocess.Popen:
+    def start(name: str, *args: str) -> subprocess.Popen:
+        # Logs go to files: an unread pipe would block a chatty child.
+        log_file = open(os.path.join(logs.name, f"{name}.log"), "w")  # noqa: SIM115
         p = subprocess.Popen(
-            [py, *args], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
+            [py, *args], env=env, stdout=subprocess.DEVNULL, stderr=log_file, text=True
         )
         procs.append(p)
         return p
 
+    def node_log() -> str:
+        with open(os.path.join(logs.name, "node.log")) as fh:
+            return fh.read()[-2000:]
+
     try:
-        start("-m", "quadmanip.common.router", "--listen", ep)
+        start("router", "-m", "quadmanip.common.router", "--listen", ep)
         time.sleep(1.0)
-        start("-m", "quadmanip.sim.bench", "responder")
-        node = start("-m", "quadmanip.sim.node", "--lockstep", "--scenario", SCENARIO)
+        start("responder", "-m", "quadmanip.sim.bench", "responder")
+        node = start("node", "-m", "quadmanip.sim.node", "--lockstep", "--scenario", SCENARIO)
         cfg = BusConfig(mode="peer", connect=(ep,), listen=("tcp/127.0.0.1:0",), env_override=False)
         stamps: list[tuple[float, float]] = []
         counts = {"lowstate": 0, "front": 0, "gripper": 0, "scan": 0}
@@ -176,10 +184,10 @@ def bench_full(wall_seconds: float = 20.0, warmup_s: float = 3.0) -> dict[str, A
             deadline = time.monotonic() + 60
             while time.monotonic() < deadline and not stamps:
                 if node.poll() is not None:
-                    raise RuntimeError(f"sim node exited: {node.stderr.read()[-2000:]}")
+                    raise RuntimeError(f"sim node exited: {node_log()}")
                 time.sleep(0.2)
             if not stamps:
-                raise RuntimeError("no sim/clock within 60 s")
+                raise RuntimeError(f"no sim/clock within 60 s: {node_log()}")
             _say("node running; warming up")
             time.sleep(warmup_s)
             with lock:
@@ -206,6 +214,7 @@ def bench_full(wall_seconds: float = 20.0, warmup_s: float = 3.0) -> dict[str, A
                 p.wait(5)
             except subprocess.TimeoutExpired:
                 p.kill()
+        logs.cleanup()
 
 
 # --------------------------------------------------------------------------- responder
