@@ -11,9 +11,9 @@ does; the node decides how fast ticks happen (realtime or lockstep).
 Physics is advanced with ``mj_step1``/``mj_step2`` so that the actuator layer computes
 its torques from the state at the start of each step, with kinematics and sensors
 current for that state (as a motor driver samples its encoder, then sets current).
-Each step the engine also checks the honesty invariant: ``xfrc_applied`` is zero except
-on bodies the test-only disturbance channel is pushing (counted in
-``external_force_violations``).
+Each step the engine also checks the honesty invariant: ``xfrc_applied`` holds exactly
+what the test-only disturbance channel wrote (zero when it is idle); anything else is
+counted in ``external_force_violations`` and logged.
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ from quadmanip.common.robot_description import (
     ARM_JOINTS,
     BASE_BODY,
     CAMERAS,
+    GRIPPER_ACTUATOR,
     GRIPPER_JOINTS,
     LEG_JOINTS,
 )
@@ -169,7 +170,9 @@ class SimEngine:
         if self.base < 0:
             raise KeyError("the model has no body 'base'")
         self.robot_bodies = _robot_bodies(m, self.base)
-        self.actuators = ActuatorLayer(m, config.actuators, LEG_JOINTS, ARM_JOINTS, GRIPPER_JOINTS)
+        self.actuators = ActuatorLayer(
+            m, config.actuators, LEG_JOINTS, ARM_JOINTS, GRIPPER_JOINTS, GRIPPER_ACTUATOR
+        )
         self.imu = Imu(m, config.sensors.imu, self.rng)
         self.disturbance = DisturbanceChannel(m, config.allow_test_disturbance)
         self._joint_qpos = np.concatenate([self.actuators.legs.qpos, self.actuators.arm.qpos])
