@@ -36,6 +36,9 @@ class VizConfig:
     jpeg_quality: int = 0  # 1..100: JPEG-compress RGB (smaller files); 0 = raw
     scan_every: int = 1  # log every Nth LiDAR scan
 
+    skeleton: bool = True  # draw the robot (stick figure from joint angles) at joints_rate
+    force_scale: float = 0.002  # m of arrow per N of foot force
+
     # Place the odom frame in the world from the first odometry/ground-truth pair (display
     # only; the estimator starts at the odom origin, the robot does not start at the world's).
     align_odom: bool = True
@@ -63,6 +66,8 @@ class VizConfig:
             raise ValueError("viz.image_every and viz.scan_every must be >= 1")
         if not 0 <= self.jpeg_quality <= 100:
             raise ValueError("viz.jpeg_quality must be in 0..100")
+        if self.force_scale < 0:
+            raise ValueError("viz.force_scale must be >= 0")
         if self.trail_max_points < 2:
             raise ValueError("viz.trail_max_points must be >= 2")
         if self.lidar_position and len(self.lidar_position) != 3:

@@ -33,6 +33,7 @@ from quadmanip.common.bus import TypedSubscriber
 from quadmanip.common.service import Input, Service, run_service
 from quadmanip.services.viz import rerun_logging as rl
 from quadmanip.services.viz.config import VizConfig
+from quadmanip.services.viz.skeleton import RobotSkeleton
 
 __all__ = ["StreamStats", "VizNode", "lidar_mount_from_description", "main", "open_recording"]
 
@@ -81,12 +82,13 @@ def open_recording(
     return rec, where
 
 
-def lidar_mount_from_description() -> tuple[np.ndarray, np.ndarray]:
+def lidar_mount_from_description(model: Any = None) -> tuple[np.ndarray, np.ndarray]:
     """base_T_lidar (position, [w, x, y, z]) from the robot description's ``lidar`` site."""
     import mujoco
     from quadmanip.common import robot_description as rd
 
-    model = rd.load_mujoco_model()
+    if model is None:
+        model = rd.load_mujoco_model()
     data = mujoco.MjData(model)
     mujoco.mj_kinematics(model, data)
     bid = model.body(rd.BASE_BODY).id
@@ -134,6 +136,16 @@ class VizNode(Service):
         self._last_report = time.monotonic()
         self._reported: dict[str, tuple[int, ...]] = {}
 
+        self._skeleton: RobotSkeleton | None = None
+        self._feet: tuple[np.ndarray, np.ndarray] | None = None  # (feet in base, base quat)
+        if cfg.skeleton:
+            try:
+                self._skeleton = RobotSkeleton()
+                rl.log_robot_body(
+                    self.rec, self._skeleton.trunk_half_size, self._skeleton.trunk_center
+                )
+            except Exception as exc:  # noqa: BLE001 - plots and sensors still work without it
+                self.log.warning("no robot skeleton", error=repr(exc))
         self._lidar_mount(cfg)
         lim = rl.RateLimiter
         self._joints = lim(cfg.joints_rate)
@@ -180,7 +192,8 @@ class VizNode(Service):
             quat = np.array(cfg.lidar_orientation or (1.0, 0.0, 0.0, 0.0), dtype=float)
         else:
             try:
-                pos, quat = lidar_mount_from_description()
+                model = self._skeleton.model if self._skeleton is not None else None
+                pos, quat = lidar_mount_from_description(model)
             except Exception as exc:  # noqa: BLE001 - a viewer without the mount is still useful
                 self.log.warning("no lidar mount from the description; using base", error=repr(exc))
                 pos, quat = np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0])
@@ -228,6 +241,10 @@ class VizNode(Service):
         if not self._joints.allow(msg.stamp):
             return False
         rl.log_lowstate(self.rec, msg)
+        if self._skeleton is not None:
+            pose = self._skeleton.pose(msg.joints.q, msg.joints.gripper_gap)
+            rl.log_skeleton(self.rec, msg.stamp, pose.segments, pose.feet)
+            self._feet = (pose.feet, msg.imu.orientation)  # read by the debug thread
         return True
 
     def _image_handler(self, topic: str) -> Callable[[m.RgbdImage], bool]:
@@ -275,6 +292,11 @@ class VizNode(Service):
         if not self._debug.allow(msg.stamp):
             return False
         rl.log_locomotion_debug(self.rec, msg)
+        feet = self._feet
+        if feet is not None:
+            rl.log_foot_forces(
+                self.rec, msg.stamp, feet[0], msg.foot_forces, feet[1], self.config.force_scale
+            )
         return True
 
     def _on_cmd_vel(self, msg: m.BodyVelocityCommand) -> bool:

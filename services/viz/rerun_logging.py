@@ -9,6 +9,8 @@ same layout (:func:`blueprint`)::
     world/odom                    odom frame; placed in the world from ground truth when
                                   the sim publishes it (display only), else identity
     world/odom/base               estimated base pose (locomotion/odometry)
+    world/odom/base/body          trunk box + stick figure from measured joint angles
+    world/odom/base/foot_forces   MPC ground reaction forces as arrows at the feet
     world/odom/base/<camera>      base_T_camera + Pinhole(K); ./rgb, ./depth
     world/odom/base/lidar/scan    2D LiDAR returns (lidar frame; mount from the description)
     world/odom/trajectory         odometry trail; world/odom/mpc_prediction the MPC horizon
@@ -50,6 +52,7 @@ __all__ = [
     "VelocityFromPoses",
     "blueprint",
     "camera_entity",
+    "log_foot_forces",
     "log_gt_base",
     "log_gt_contacts",
     "log_gt_objects",
@@ -61,7 +64,9 @@ __all__ = [
     "log_odom_alignment",
     "log_odometry",
     "log_rgbd",
+    "log_robot_body",
     "log_scan",
+    "log_skeleton",
     "log_static_layout",
     "log_text",
     "log_trail",
@@ -289,6 +294,59 @@ def log_locomotion_debug(rec: rr.RecordingStream, msg: m.LocomotionDebug) -> Non
             f"{ODOM}/mpc_prediction",
             rr.LineStrips3D([pred.astype(np.float32)], colors=[_MPC_COLOR], radii=0.008),
         )
+
+
+def log_robot_body(
+    rec: rr.RecordingStream, trunk_half_size: np.ndarray, trunk_center: np.ndarray
+) -> None:
+    """Static trunk box in the base frame (the legs and arm are the skeleton's lines)."""
+    rec.log(
+        f"{BASE}/body/trunk",
+        rr.Boxes3D(half_sizes=[trunk_half_size], centers=[trunk_center], colors=[[120, 120, 130]]),
+        static=True,
+    )
+
+
+def log_skeleton(
+    rec: rr.RecordingStream, stamp: float, segments: np.ndarray, feet: np.ndarray
+) -> None:
+    """The robot's stick figure (segments K×2×3) and foot centres (4×3), base frame."""
+    set_time(rec, stamp)
+    rec.log(
+        f"{BASE}/body/skeleton",
+        rr.LineStrips3D(segments.astype(np.float32), radii=0.012, colors=[[70, 70, 80]]),
+    )
+    rec.log(
+        f"{BASE}/body/feet",
+        rr.Points3D(feet.astype(np.float32), radii=0.02, colors=_FOOT_COLORS),
+    )
+
+
+def log_foot_forces(
+    rec: rr.RecordingStream,
+    stamp: float,
+    feet_base: np.ndarray,
+    forces_world: np.ndarray,
+    base_orientation_wxyz: np.ndarray,
+    metres_per_newton: float = 0.002,
+) -> None:
+    """Ground reaction forces (world frame, N; e.g. the MPC's) drawn as arrows at the feet.
+
+    Arrows live under the base entity, so the world-frame forces are rotated into the base
+    frame with the base orientation (``R^T f``).
+    """
+    r = _rot_wxyz(base_orientation_wxyz)
+    vectors = (np.asarray(forces_world, dtype=float) @ r) * metres_per_newton  # rows: R^T f
+    set_time(rec, stamp)
+    rec.log(
+        f"{BASE}/foot_forces",
+        rr.Arrows3D(
+            origins=np.asarray(feet_base, dtype=np.float32),
+            vectors=vectors.astype(np.float32),
+            colors=_FOOT_COLORS,
+            radii=0.008,
+        ),
+    )
 
 
 # --------------------------------------------------------------------------- sensors

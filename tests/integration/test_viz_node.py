@@ -167,6 +167,8 @@ def test_viz_records_every_stream(zenoh_router, spawn, bus_factory, tmp_path: Pa
         "/plots/joints/position",
         "/plots/imu/angular_velocity",
         "/world/odom/base",
+        "/world/odom/base/body/skeleton",
+        "/world/odom/base/foot_forces",
         "/world/odom/base/front_camera",
         "/world/odom/base/front_camera/rgb",
         "/world/odom/base/front_camera/depth",

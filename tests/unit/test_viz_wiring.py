@@ -196,6 +196,8 @@ def test_node_throttles_counts_and_survives_bad_messages(node) -> None:
     ents = _entities(out)
     for e in (
         "/plots/joints/position",
+        "/world/odom/base/body/skeleton",
+        "/world/odom/base/body/trunk",
         "/world/odom/base",
         "/world/odom/base/front_camera/rgb",
         "/world/odom/base/front_camera/depth",
