@@ -1,0 +1,277 @@
+"""``quadmanip bench manipulation --json FILE``: IK speed/accuracy and the physics matrix.
+
+Measures (nothing is invented: a field that was not measured is null):
+
+* IK solve time (us, p50/p99) and FK(IK(x)) round-trip error over N random reachable poses
+  (poses are FK of uniformly random joint vectors inside the limits);
+* the grasp matrix in MuJoCo physics (in-process harness, see ``sim_harness.py``): every
+  catalogue object from the floor (vertical) and from a table (vertical, or horizontal
+  for objects taller than 12 cm), ``--trials`` random poses each; success = the primitive
+  succeeded and the object stayed >= 10 cm above its start for 3 s; time per grasp =
+  goal to lifted, sim seconds;
+* placing each object into its category's deposit container (house sizes), drawers
+  excluded (the drawer region needs the house cabinet; not in this matrix yet);
+* opening the three drawers of the house cabinet (>= 15 cm).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from quadmanip.services.manipulation.arm_kinematics import ArmGeometry, fk, fk_tcp, solve_ik
+from quadmanip.services.manipulation.config import load_manipulation_config
+
+__all__ = ["bench_ik", "main"]
+
+TALL = 0.12  # objects taller than this are grasped horizontally from a table
+
+
+def bench_ik(n: int, seed: int = 0) -> dict[str, Any]:
+    """IK timing and round-trip error over ``n`` random reachable poses."""
+    geom = ArmGeometry.from_description()
+    rng = np.random.default_rng(seed)
+    qs = rng.uniform(geom.q_min, geom.q_max, size=(n, 4))
+    targets = [fk_tcp(geom, q) for q in qs]
+    times = np.empty(n)
+    err = np.empty(n)
+    fails = 0
+    for i, (q, tg) in enumerate(zip(qs, targets, strict=True)):
+        t0 = time.perf_counter()
+        sol = solve_ik(geom, tg, roll_symmetric=False)
+        times[i] = time.perf_counter() - t0
+        if not sol.ok:
+            fails += 1
+            err[i] = np.nan
+            continue
+        err[i] = float(np.max(np.abs(fk(geom, sol.q)[:3, 3] - fk(geom, q)[:3, 3])))
+    return {
+        "poses": n,
+        "ik_us_p50": float(np.median(times) * 1e6),
+        "ik_us_p99": float(np.percentile(times, 99) * 1e6),
+        "roundtrip_err_m_max": float(np.nanmax(err)),
+        "failures": fails,
+    }
+
+
+def _grasp_trial(name: str, where: str, rng: np.random.Generator) -> dict[str, Any]:
+    from quadmanip.services.manipulation.grasp import GraspPrimitive, GraspRejected, plan_grasp
+    from quadmanip.services.manipulation.primitive import Status
+    from quadmanip.services.manipulation.sim_harness import (
+        TABLE_HEIGHT,
+        PlacedObject,
+        SimHarness,
+        grasp_from_ground_truth,
+        table_boxes,
+    )
+
+    cfg = load_manipulation_config()
+    geom = ArmGeometry.from_description()
+    h0 = SimHarness()  # catalogue access only
+    o = h0.catalogue.objects[name]
+    surface = 0.0 if where == "floor" else TABLE_HEIGHT
+    approach = "horizontal" if where == "table" and o.size[2] > TALL else "vertical"
+    yaw = (
+        rng.uniform(-0.3, 0.3)
+        if approach == "horizontal"
+        else rng.uniform(-math.pi / 2, math.pi / 2)
+    )
+    pos = (rng.uniform(0.33, 0.40), rng.uniform(-0.04, 0.04), surface + o.size[2] / 2 + 0.001)
+    boxes = [] if where == "floor" else table_boxes()
+    h = SimHarness([PlacedObject(name, pos, yaw=float(yaw))], boxes)
+    h.settle(0.3)
+    z0 = float(h.object_pos(name)[2])
+    out: dict[str, Any] = {"object": name, "where": where, "approach": approach, "yaw": float(yaw)}
+    try:
+        gs = grasp_from_ground_truth(h, name, surface, approach)
+        plan = plan_grasp(geom, cfg, gs.position_base, gs.approach, gs.yaw, gs.width)
+    except GraspRejected as exc:
+        out.update(success=False, reason=str(exc), time_s=None)
+        return out
+    prim = h.run(GraspPrimitive(geom, cfg, plan), cfg.motion.kp, cfg.motion.kd, timeout=30.0)
+    low = math.inf
+    if prim.status is Status.SUCCEEDED:
+        for _ in range(30):
+            h.settle(0.1)
+            low = min(low, float(h.object_pos(name)[2]) - z0)
+    ok = prim.status is Status.SUCCEEDED and low >= 0.10
+    t = None if prim.t_lifted is None or prim.t_start is None else prim.t_lifted - prim.t_start
+    out.update(
+        success=bool(ok), reason=prim.reason, time_s=t, min_lift_m=None if low == math.inf else low
+    )
+    return out
+
+
+def _place_trial(name: str) -> dict[str, Any]:
+    from quadmanip.services.manipulation.grasp import GraspPrimitive, GraspRejected, plan_grasp
+    from quadmanip.services.manipulation.place import PlacePrimitive, plan_place
+    from quadmanip.services.manipulation.primitive import Status
+    from quadmanip.services.manipulation.sim_harness import (
+        TABLE_HEIGHT,
+        PlacedObject,
+        SimHarness,
+        container_boxes,
+        container_inner,
+        grasp_from_ground_truth,
+        table_boxes,
+    )
+    from quadmanip.sim.world.house import load_house
+    from quadmanip.sim.world.objects import load_catalogue
+
+    cfg = load_manipulation_config()
+    geom = ArmGeometry.from_description()
+    cat = load_catalogue()
+    place = cat.place_of(name)
+    out: dict[str, Any] = {"object": name, "region": place}
+    cont = next((c for c in load_house().containers if c.name == place), None)
+    if cont is None:
+        out.update(success=None, reason="region not in this matrix (drawer)")
+        return out
+    surface = 0.0 if cont.on == "floor" else TABLE_HEIGHT
+    cx = 0.55 if cont.on == "floor" else 0.48
+    o = cat.objects[name]
+    boxes = container_boxes(place, cx, surface) + (table_boxes(length=0.7) if surface else [])
+    h = SimHarness(
+        [PlacedObject(name, (0.31, 0.0, surface + o.size[2] / 2 + 0.001), yaw=0.2)], boxes
+    )
+    h.settle(0.3)
+    t0 = float(h.data.time)
+    try:
+        gs = grasp_from_ground_truth(h, name, surface, "vertical")
+        plan = plan_grasp(geom, cfg, gs.position_base, gs.approach, gs.yaw, gs.width)
+    except GraspRejected as exc:
+        out.update(success=False, reason=f"grasp: {exc}")
+        return out
+    g = h.run(GraspPrimitive(geom, cfg, plan), cfg.motion.kp, cfg.motion.kd, timeout=30.0)
+    if g.status is not Status.SUCCEEDED:
+        out.update(success=False, reason=f"grasp: {g.reason}")
+        return out
+    hang = float(h.tcp_world()[2] - (h.object_pos(name)[2] - o.size[2] / 2))
+    ix, iy, height = container_inner(place, cx)
+    target = np.array([cx - 0.6 * ix, 0.0, surface + height])
+    yaw = 0.0 if max(o.size[0], o.size[1]) > 2 * ix else None
+    try:
+        pplan = plan_place(
+            geom, cfg, h.world_to_base(target), h.observation().q_arm, hang, g.body, yaw
+        )
+    except GraspRejected as exc:
+        out.update(success=False, reason=f"place: {exc}")
+        return out
+    p = h.run(
+        PlacePrimitive(geom, cfg, pplan, monitor=g.monitor, body=g.body),
+        cfg.motion.kp,
+        cfg.motion.kd,
+        40.0,
+    )
+    h.settle(1.0)
+    end = h.object_pos(name)
+    inside = (
+        abs(end[0] - cx) < ix and abs(end[1]) < iy and surface < end[2] < surface + height + 0.15
+    )
+    out.update(
+        success=bool(inside),
+        primitive=p.status.value,
+        reason=p.reason,
+        time_s=float(h.data.time) - t0,
+    )
+    return out
+
+
+def _drawer_trial(which: str) -> dict[str, Any]:
+    from quadmanip.services.manipulation.drawer import DrawerPrimitive, plan_drawer
+    from quadmanip.services.manipulation.sim_harness import SimHarness, drawer_world
+
+    cfg = load_manipulation_config()
+    geom = ArmGeometry.from_description()
+    world = drawer_world(which)
+    h = SimHarness(world=world)
+    h.settle(0.3)
+    handle = h.world_to_base(h.data.body(world.drawer_handles[which]).xpos)  # type: ignore[attr-defined]
+    plan = plan_drawer(geom, cfg, handle, np.array([-1.0, 0.0, 0.0]), 0.15)
+    prim = h.run(DrawerPrimitive(geom, cfg, plan), cfg.motion.kp, cfg.motion.kd, timeout=40.0)
+    h.settle(0.5)
+    jname = world.drawer_joints[which]  # type: ignore[attr-defined]
+    opened = float(h.data.qpos[world.model.joint(jname).qposadr[0]])  # type: ignore[attr-defined]
+    return {
+        "drawer": which,
+        "opened_m": opened,
+        "success": bool(opened >= 0.15),
+        "primitive": prim.status.value,
+        "reason": prim.reason,
+        "time_s": None if prim.t_end is None else prim.t_end - (prim.t_start or 0.0),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Runs the benchmark and writes the JSON report."""
+    ap = argparse.ArgumentParser(prog="quadmanip bench manipulation")
+    ap.add_argument("--json", type=Path, help="write the report here")
+    ap.add_argument("--poses", type=int, default=10_000, help="IK poses")
+    ap.add_argument("--trials", type=int, default=3, help="random poses per object and place")
+    ap.add_argument("--objects", nargs="*", help="subset of objects (default: all)")
+    ap.add_argument("--no-physics", action="store_true", help="IK only")
+    args = ap.parse_args(argv)
+
+    t_start = time.time()
+    report: dict[str, Any] = {"ik": bench_ik(args.poses)}
+    summary: dict[str, Any] = {
+        "ik_us_p50": report["ik"]["ik_us_p50"],
+        "ik_roundtrip_err_m_max": report["ik"]["roundtrip_err_m_max"],
+        "grasp_success_overall": None,
+        "grasp_success_min_per_object": None,
+        "place_success": None,
+        "drawers_opened": None,
+        "grasp_time_s_p50": None,
+    }
+    if not args.no_physics:
+        from quadmanip.sim.world.objects import load_catalogue
+
+        names = args.objects or list(load_catalogue().names)
+        rng = np.random.default_rng(0)
+        grasps = [
+            _grasp_trial(n, where, rng)
+            for n in names
+            for where in ("floor", "table")
+            for _ in range(args.trials)
+        ]
+        report["grasps"] = grasps
+        per_obj = {
+            n: float(np.mean([g["success"] for g in grasps if g["object"] == n])) for n in names
+        }
+        per_type: dict[str, float] = {}
+        for key in {(g["where"], g["approach"]) for g in grasps}:
+            sel = [g["success"] for g in grasps if (g["where"], g["approach"]) == key]
+            per_type[f"{key[0]}_{key[1]}"] = float(np.mean(sel))
+        times = [g["time_s"] for g in grasps if g["success"] and g["time_s"] is not None]
+        report["grasp_success_per_object"] = per_obj
+        report["grasp_success_per_type"] = per_type
+        places = [_place_trial(n) for n in names]
+        report["places"] = places
+        done = [p for p in places if p["success"] is not None]
+        drawers = [_drawer_trial(w) for w in ("left", "right", "top")]
+        report["drawers"] = drawers
+        summary.update(
+            grasp_success_overall=float(np.mean([g["success"] for g in grasps])),
+            grasp_success_min_per_object=float(min(per_obj.values())),
+            place_success=float(np.mean([p["success"] for p in done])) if done else None,
+            places_attempted=len(done),
+            drawers_opened=int(sum(d["success"] for d in drawers)),
+            grasp_time_s_p50=float(np.median(times)) if times else None,
+        )
+    report["summary"] = summary
+    report["wall_s"] = time.time() - t_start
+    text = json.dumps(report, indent=2)
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(text)
+    print(json.dumps(summary, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
