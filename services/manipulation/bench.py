@@ -133,16 +133,18 @@ def _place_trial(name: str) -> dict[str, Any]:
         out.update(success=None, reason="region not in this matrix (drawer)")
         return out
     surface = 0.0 if cont.on == "floor" else TABLE_HEIGHT
-    cx = 0.55 if cont.on == "floor" else 0.48
     o = cat.objects[name]
+    tall = surface > 0 and o.size[2] > TALL  # grasped horizontally: needs more room
+    cx = 0.55 if cont.on == "floor" or tall else 0.48
+    ox = 0.35 if tall else 0.31
     boxes = container_boxes(place, cx, surface) + (table_boxes(length=0.7) if surface else [])
-    h = SimHarness(
-        [PlacedObject(name, (0.31, 0.0, surface + o.size[2] / 2 + 0.001), yaw=0.2)], boxes
-    )
+    start = PlacedObject(name, (ox, 0.0, surface + o.size[2] / 2 + 0.001), yaw=0.0 if tall else 0.2)
+    h = SimHarness([start], boxes)
     h.settle(0.3)
     t0 = float(h.data.time)
+    approach = "horizontal" if tall else "vertical"
     try:
-        gs = grasp_from_ground_truth(h, name, surface, "vertical")
+        gs = grasp_from_ground_truth(h, name, surface, approach)
         plan = plan_grasp(geom, cfg, gs.position_base, gs.approach, gs.yaw, gs.width)
     except GraspRejected as exc:
         out.update(success=False, reason=f"grasp: {exc}")
