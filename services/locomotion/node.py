@@ -55,6 +55,8 @@ class LocomotionNode(Service):
         self.pub_debug = self.publisher("locomotion/debug")
         self._last_stamp = 0.0
         self._last_mpc_tick = -1
+        self._last_phase = self.ctl.phase
+        self._last_cmd: m.LegCommand | None = None
         if cfg.node.start_mode != "damp":
             self.ctl.set_mode(cfg.node.start_mode)
         self.subscribe("locomotion/mode", self._on_mode)
@@ -103,6 +105,12 @@ class LocomotionNode(Service):
 
     def _on_lowstate(self, ls: m.LowState) -> None:
         with self.lock:
+            if self._last_cmd is not None and ls.tick <= self._last_cmd.tick:
+                # A LowState seen before (the lockstep sim republishes while it waits):
+                # answer again with the same command instead of stepping the controller.
+                if ls.tick == self._last_cmd.tick:
+                    self.pub_cmd.publish(self._last_cmd)
+                return
             self._last_stamp = float(ls.stamp)
             self.ctl.held_mass = self._held_mass(ls.joints)
             out = self.ctl.step(
@@ -123,7 +131,11 @@ class LocomotionNode(Service):
                 tau_ff=out.tau_ff,
             )
             self.pub_cmd.publish(cmd)
+            self._last_cmd = cmd
             self.ticks += 1
+            if self.ctl.phase != self._last_phase:
+                self.log.info("phase", old=self._last_phase, new=self.ctl.phase, t=ls.stamp)
+                self._last_phase = self.ctl.phase
             if self.ctl.phase in ("balance", "walk", "stopping"):
                 if self.ticks % max(1, self.config.node.odometry_every) == 0:
                     self.pub_odom.publish(self._odometry(ls.stamp))

@@ -176,8 +176,9 @@ def test_stand_sixty_seconds_without_drift(stack):
 def test_tracks_every_velocity_command(stack):
     stack.stand_up()
     results = {}
-    for v in [(-0.3, 0.0, 0.0), (0.0, 0.3, 0.0), (0.0, -0.3, 0.0), (0.0, 0.0, 1.0),
-              (0.0, 0.0, -1.0), (0.3, 0.2, 0.5)]:  # fmt: skip
+    # Ordered so that the robot stays clear of the west wall and the paper-1 objects.
+    for v in [(0.0, 0.3, 0.0), (0.0, -0.3, 0.0), (0.0, 0.0, 1.0), (0.0, 0.0, -1.0),
+              (0.3, 0.0, 0.0), (-0.3, 0.0, 0.0), (0.3, 0.2, 0.5)]:  # fmt: skip
         results[v] = track(stack, v, 3.0)[:2]
         stack.send_vel(0.0, 0.0, 0.0)
         stack.wait_sim(stack.now() + 1.0, timeout=60)
