@@ -18,6 +18,7 @@ from dataclasses import dataclass
 SERVICES: dict[str, str] = {
     "sim": "quadmanip.sim.node:main",
     "locomotion": "quadmanip.services.locomotion.node:main",
+    "manipulation": "quadmanip.services.manipulation.node:main",
     "viz": "quadmanip.services.viz.node:main",
 }
 

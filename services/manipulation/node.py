@@ -102,10 +102,12 @@ class ManipulationNode(Service):
         self.active: Primitive | None = None
         self._cancel_req = False
         bus = self.bus
-        bus.action_server(self.name, "move_to_posture", m.PostureGoal, self._exec, self._accept)
-        bus.action_server(self.name, "grasp", m.GraspGoal, self._exec, self._accept)
-        bus.action_server(self.name, "place", m.PlaceGoal, self._exec, self._accept)
-        bus.action_server(self.name, "open_drawer", m.DrawerGoal, self._exec, self._accept)
+        bus.action_server(
+            self.name, "move_to_posture", m.PostureGoal, self._exec, accept=self._accept
+        )
+        bus.action_server(self.name, "grasp", m.GraspGoal, self._exec, accept=self._accept)
+        bus.action_server(self.name, "place", m.PlaceGoal, self._exec, accept=self._accept)
+        bus.action_server(self.name, "open_drawer", m.DrawerGoal, self._exec, accept=self._accept)
         self.set_state("running")
 
     # ------------------------------------------------------------------ planning
@@ -255,3 +257,7 @@ class ManipulationNode(Service):
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``quadmanip service manipulation``."""
     return run_service(ManipulationNode, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
