@@ -230,47 +230,63 @@ def main(argv: list[str] | None = None) -> int:
         "drawers_opened": None,
         "grasp_time_s_p50": None,
     }
+
+    def write(complete: bool) -> None:
+        report["summary"] = summary
+        report["complete"] = complete
+        report["wall_s"] = time.time() - t_start
+        if args.json:
+            args.json.parent.mkdir(parents=True, exist_ok=True)
+            args.json.write_text(json.dumps(report, indent=2))
+
     if not args.no_physics:
         from quadmanip.sim.world.objects import load_catalogue
 
         names = args.objects or list(load_catalogue().names)
         rng = np.random.default_rng(0)
-        grasps = [
-            _grasp_trial(n, where, rng)
-            for n in names
-            for where in ("floor", "table")
-            for _ in range(args.trials)
-        ]
-        report["grasps"] = grasps
-        per_obj = {
-            n: float(np.mean([g["success"] for g in grasps if g["object"] == n])) for n in names
-        }
-        per_type: dict[str, float] = {}
-        for key in {(g["where"], g["approach"]) for g in grasps}:
-            sel = [g["success"] for g in grasps if (g["where"], g["approach"]) == key]
-            per_type[f"{key[0]}_{key[1]}"] = float(np.mean(sel))
-        times = [g["time_s"] for g in grasps if g["success"] and g["time_s"] is not None]
-        report["grasp_success_per_object"] = per_obj
-        report["grasp_success_per_type"] = per_type
-        places = [_place_trial(n) for n in names]
-        report["places"] = places
-        done = [p for p in places if p["success"] is not None]
-        drawers = [_drawer_trial(w) for w in ("left", "right", "top")]
-        report["drawers"] = drawers
-        summary.update(
-            grasp_success_overall=float(np.mean([g["success"] for g in grasps])),
-            grasp_success_min_per_object=float(min(per_obj.values())),
-            place_success=float(np.mean([p["success"] for p in done])) if done else None,
-            places_attempted=len(done),
-            drawers_opened=int(sum(d["success"] for d in drawers)),
-            grasp_time_s_p50=float(np.median(times)) if times else None,
-        )
-    report["summary"] = summary
-    report["wall_s"] = time.time() - t_start
-    text = json.dumps(report, indent=2)
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(text)
+        grasps: list[dict[str, Any]] = []
+        places: list[dict[str, Any]] = []
+        drawers: list[dict[str, Any]] = []
+        report.update(grasps=grasps, places=places, drawers=drawers)
+
+        def update() -> None:
+            done_names = sorted({g["object"] for g in grasps})
+            per_obj = {
+                n: float(np.mean([g["success"] for g in grasps if g["object"] == n]))
+                for n in done_names
+            }
+            per_type: dict[str, float] = {}
+            for key in sorted({(g["where"], g["approach"]) for g in grasps}):
+                sel = [g["success"] for g in grasps if (g["where"], g["approach"]) == key]
+                per_type[f"{key[0]}_{key[1]}"] = float(np.mean(sel))
+            times = [g["time_s"] for g in grasps if g["success"] and g["time_s"] is not None]
+            placed = [p for p in places if p["success"] is not None]
+            report["grasp_success_per_object"] = per_obj
+            report["grasp_success_per_type"] = per_type
+            summary.update(
+                grasp_success_overall=float(np.mean([g["success"] for g in grasps]))
+                if grasps
+                else None,
+                grasp_success_min_per_object=float(min(per_obj.values())) if per_obj else None,
+                place_success=float(np.mean([p["success"] for p in placed])) if placed else None,
+                places_attempted=len(placed),
+                drawers_opened=int(sum(d["success"] for d in drawers)) if drawers else None,
+                grasp_time_s_p50=float(np.median(times)) if times else None,
+            )
+            write(False)
+
+        for which in ("left", "right", "top"):
+            drawers.append(_drawer_trial(which))
+            update()
+        for n in names:
+            for where in ("floor", "table"):
+                for _ in range(args.trials):
+                    grasps.append(_grasp_trial(n, where, rng))
+                    update()
+        for n in names:
+            places.append(_place_trial(n))
+            update()
+    write(True)
     print(json.dumps(summary, indent=2))
     return 0
 
