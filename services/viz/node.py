@@ -183,7 +183,7 @@ class VizNode(Service):
         self._wire("gt_contacts", "sim/gt/contacts", self._on_gt_contacts)
         self._wire("judge", "sim/gt/judge", self._on_judge)
         for s in keys.SERVICES:
-            self._wire("heartbeat", f"{s}/heartbeat", self._on_heartbeat)
+            self._wire("heartbeat", f"{s}/heartbeat", self._on_heartbeat, robot_time=False)
         self.log.info("viz recording", sinks=",".join(where))
 
     def _lidar_mount(self, cfg: VizConfig) -> None:
@@ -200,10 +200,13 @@ class VizNode(Service):
         rl.log_lidar_mount(self.rec, pos, quat)
 
     # ------------------------------------------------------------------ wiring
-    def _wire(self, stream: str, topic: str, fn: Callable[[Any], bool]) -> None:
+    def _wire(
+        self, stream: str, topic: str, fn: Callable[[Any], bool], robot_time: bool = True
+    ) -> None:
         """Subscribe ``fn`` (returns True if it logged) with counting and error isolation.
 
-        Each stream has its own lock: its throttle state is touched by one callback at a
+        ``robot_time``: the stream's stamps are robot time and advance the bridge's clock
+        (heartbeats may carry wall time). Each stream has its own lock: its throttle state is touched by one callback at a
         time, while streams run in parallel (a slow image never delays the joint plots).
         """
         stats = self._stats.setdefault(stream, StreamStats())
@@ -214,7 +217,8 @@ class VizNode(Service):
                 if self._closed:
                     return
                 stats.received += 1
-                self._last_stamp = max(self._last_stamp, float(msg.stamp))
+                if robot_time:
+                    self._last_stamp = float(msg.stamp)
                 try:
                     logged = fn(msg)
                 except Exception as exc:  # noqa: BLE001 - never let one bad message stop us
@@ -348,7 +352,7 @@ class VizNode(Service):
         return True
 
     def _on_heartbeat(self, msg: m.Heartbeat) -> bool:
-        return rl.log_heartbeat(self.rec, msg, self._heartbeats)
+        return rl.log_heartbeat(self.rec, msg, self._heartbeats, robot_time=self._last_stamp)
 
     # ------------------------------------------------------------------ counters
     def stats(self) -> dict[str, StreamStats]:

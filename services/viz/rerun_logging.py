@@ -523,14 +523,25 @@ class HeartbeatTracker:
         return {k: v[1] for k, v in self._last.items()}
 
 
-def log_heartbeat(rec: rr.RecordingStream, msg: m.Heartbeat, tracker: HeartbeatTracker) -> bool:
-    """Log a heartbeat line under ``log/heartbeat/<service>`` if it is news; True if logged."""
+def log_heartbeat(
+    rec: rr.RecordingStream,
+    msg: m.Heartbeat,
+    tracker: HeartbeatTracker,
+    robot_time: float | None = None,
+) -> bool:
+    """Log a heartbeat line under ``log/heartbeat/<service>`` if it is news; True if logged.
+
+    ``robot_time`` places the line on the timeline instead of ``msg.stamp``: a service that
+    does not follow the sim clock stamps its heartbeats with wall time, which would land
+    decades away from the sim-time data.
+    """
     news = tracker.news(msg)
     if news is None:
         return False
     text, level = news
     name = _ENTITY_RE.sub("_", msg.service) or "unknown"
-    log_text(rec, f"{LOG}/heartbeat/{name}", msg.stamp, text, level)
+    stamp = msg.stamp if robot_time is None else robot_time
+    log_text(rec, f"{LOG}/heartbeat/{name}", stamp, text, level)
     return True
 
 

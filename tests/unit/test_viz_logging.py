@@ -407,3 +407,11 @@ def test_odom_in_world_maps_the_estimate_onto_the_truth() -> None:
     c, s = math.cos(yaw), math.sin(yaw)
     rz = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
     np.testing.assert_allclose(rz @ p_od + t, p_gt, atol=1e-12)  # world_T_odom · p_odom
+
+
+def test_heartbeat_with_wall_clock_stamp_lands_at_robot_time(recording: Recording) -> None:
+    # Services that do not follow the sim clock stamp heartbeats with wall time (~1.8e9 s).
+    hb = m.Heartbeat(stamp=1.79e9, service="locomotion", seq=0, state="running")
+    assert rl.log_heartbeat(recording.rec, hb, rl.HeartbeatTracker(), robot_time=12.5)
+    (row,) = recording.read()["/log/heartbeat/locomotion"]
+    assert row[rl.TIMELINE] == pytest.approx(12.5)
