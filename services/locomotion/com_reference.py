@@ -80,36 +80,34 @@ def fsm_plan(
     horizon: int,
     dt: float,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Algorithm 7 for several independent axes at once (vectorised; see module notes).
+    """Algorithm 7 for several independent axes (see module notes for the corrections).
 
     All inputs are arrays over axes; returns planned (pose, vel), each (horizon, n_axes).
+    Plain Python floats: for a handful of axes this is several times faster than numpy.
     """
-    pose = np.array(pose, dtype=float)
-    vel = np.array(vel, dtype=float)
-    planned_pose = np.empty((horizon, pose.size))
-    planned_vel = np.empty((horizon, pose.size))
-    for i in range(horizon):
-        diff = desired - pose
-        sign = np.sign(diff)
-        close = np.abs(diff) < threshold
-        away = diff * vel < 0.0
-        can_stop = vel * vel / (2.0 * acc) < np.abs(diff)
-        over = np.abs(vel) > vel_limit
-        accel = (~away) & can_stop & (np.abs(vel) + acc * dt <= vel_limit)
-        decel = (~away) & (~can_stop | over)
-        top = (~away) & can_stop & ~over & ~accel
-        v_new = vel.copy()
-        v_new = np.where(away, sign * feed_back_vel, v_new)
-        v_new = np.where(accel, vel + acc * dt * sign, v_new)
-        v_new = np.where(top, sign * vel_limit, v_new)
-        v_new = np.where(decel, vel - acc * dt * np.sign(vel), v_new)
-        # Do not let a deceleration reverse the motion within a step.
-        v_new = np.where(decel & (v_new * vel < 0.0), 0.0, v_new)
-        v_new = np.where(close, 0.0, v_new)
-        pose = np.where(close, desired, pose + v_new * dt)
-        vel = v_new
-        planned_pose[i] = pose
-        planned_vel[i] = vel
+    n_ax = len(pose)
+    planned_pose = np.empty((horizon, n_ax))
+    planned_vel = np.empty((horizon, n_ax))
+    for a in range(n_ax):
+        p, v = float(pose[a]), float(vel[a])
+        goal, lim, thr = float(desired[a]), float(vel_limit[a]), float(threshold[a])
+        fbv, ac = float(feed_back_vel[a]), float(acc[a])
+        for i in range(horizon):
+            diff = goal - p
+            if abs(diff) < thr:
+                v, p = 0.0, goal
+            else:
+                sign = 1.0 if diff > 0.0 else -1.0
+                if diff * v < 0.0:  # moving away: turn back at FEED_BACK_VEL
+                    v = sign * fbv
+                elif v * v / (2.0 * ac) < abs(diff) and abs(v) <= lim:
+                    v = sign * min(abs(v) + ac * dt, lim)  # accelerate up to VEL_LIMIT
+                else:  # must brake (or above VEL_LIMIT): decelerate, never reverse
+                    v_new = v - ac * dt * (1.0 if v > 0.0 else -1.0)
+                    v = 0.0 if v_new * v < 0.0 else v_new
+                p += v * dt
+            planned_pose[i, a] = p
+            planned_vel[i, a] = v
     return planned_pose, planned_vel
 
 

@@ -95,19 +95,25 @@ def rot_z(yaw: float) -> np.ndarray:
 
 def desired_forces(foot_rel: np.ndarray, contact: np.ndarray, mass: float) -> np.ndarray:
     """Vertical forces (N, 4, 3) near the equal split m·g/n that carry the weight with no
-    roll/pitch moment about the COM (least squares when two feet cannot balance it)."""
+    roll/pitch moment about the COM (least squares when two feet cannot balance it).
+
+    Solved for all horizon steps at once as a ridge-regularised least-squares problem
+    min |A f − b|² + ε |f − f₀|² with A = [1; y_i; x_i] over the feet in stance.
+    """
     n = contact.shape[0]
-    out = np.zeros((n, 4, 3))
+    c = contact.astype(float)
+    n_st = np.maximum(c.sum(axis=1), 1.0)
     w = mass * GRAVITY
-    for k in range(n):
-        idx = np.flatnonzero(contact[k])
-        if idx.size == 0:
-            continue
-        f0 = np.full(idx.size, w / idx.size)
-        a = np.vstack([np.ones(idx.size), foot_rel[k, idx, 1], foot_rel[k, idx, 0]])
-        b = np.array([w, 0.0, 0.0])
-        fz = f0 + np.linalg.pinv(a) @ (b - a @ f0)
-        out[k, idx, 2] = np.maximum(fz, 0.0)
+    f0 = c * (w / n_st)[:, None]  # (n, 4)
+    a = np.stack([c, foot_rel[:, :, 1] * c, foot_rel[:, :, 0] * c], axis=1)  # (n, 3, 4)
+    b = np.zeros((n, 3))
+    b[:, 0] = w
+    resid = b - np.einsum("kij,kj->ki", a, f0)
+    eps = 1e-8
+    ata = np.einsum("kij,kil->kjl", a, a) + eps * np.eye(4)[None]
+    df = np.linalg.solve(ata, np.einsum("kij,ki->kj", a, resid)[:, :, None])[:, :, 0]
+    out = np.zeros((n, 4, 3))
+    out[:, :, 2] = np.maximum(f0 + df, 0.0) * c
     return out
 
 
