@@ -442,8 +442,10 @@ def grasp_from_ground_truth(
             yaw, width = obj_yaw + math.pi / 2, 2 * half[0]
         pt[2] = max(surface_z + 0.021, top - 0.03)
         return GraspSpec(h.world_to_base(pt), "vertical", yaw - base_yaw, float(width))
-    # horizontal: extent across the body's y axis
+    # horizontal: extent across the body's y axis (a round object's diameter)
     ext = np.abs(rot) @ (0.5 * np.asarray(spec.size))
+    if spec.shape in ("cylinder", "sphere"):
+        ext[1] = 0.5 * spec.size[0]
     pt = p.copy()
     pt[2] = surface_z + min(0.05, max(0.02, 0.5 * spec.size[2]))
     return GraspSpec(h.world_to_base(pt), "horizontal", 0.0, float(2 * ext[1]))
