@@ -22,20 +22,19 @@ import logging
 import threading
 import time
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import numpy as np
-import rerun as rr
 from quadmanip.common import keys
 from quadmanip.common import messages as m
 from quadmanip.common.bus import TypedSubscriber
 from quadmanip.common.service import Input, Service, run_service
 from quadmanip.services.viz import rerun_logging as rl
 from quadmanip.services.viz.config import VizConfig
+from quadmanip.services.viz.sinks import Recordings, open_recordings
 from quadmanip.services.viz.skeleton import RobotSkeleton
 
-__all__ = ["StreamStats", "VizNode", "lidar_mount_from_description", "main", "open_recording"]
+__all__ = ["StreamStats", "VizNode", "lidar_mount_from_description", "main"]
 
 
 @dataclasses.dataclass
@@ -48,38 +47,6 @@ class StreamStats:
     errors: int = 0  # conversion failures
     bus_dropped: int = 0  # overwritten in the bus's latest-only slot before we took them
     decode_errors: int = 0  # bad payloads (counted by the bus)
-
-
-def resolve_output(template: str, now: float | None = None) -> Path:
-    """``{time}`` → UTC ``YYYYmmdd_HHMMSS``; parent folders created."""
-    stamp = time.strftime("%Y%m%d_%H%M%S", time.gmtime(time.time() if now is None else now))
-    path = Path(template.replace("{time}", stamp)).expanduser()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    return path
-
-
-def open_recording(
-    cfg: VizConfig, recording_id: str | None = None
-) -> tuple[rr.RecordingStream, list[str]]:
-    """A recording stream with the configured sinks (file, remote viewer, hosted server),
-    the default blueprint and the static layout. Returns it and a description of each sink."""
-    rec = rr.RecordingStream(cfg.application_id, recording_id=recording_id)
-    sinks: list[Any] = []
-    where: list[str] = []
-    if cfg.output:
-        path = resolve_output(cfg.output)
-        sinks.append(rr.FileSink(str(path)))
-        where.append(f"file:{path}")
-    if cfg.connect_url:
-        sinks.append(rr.GrpcSink(cfg.connect_url))
-        where.append(f"viewer:{cfg.connect_url}")
-    if cfg.serve_port:
-        server = rr.GrpcServerSink(port=cfg.serve_port)
-        sinks.append(server)
-        where.append(f"serve:{server.uri}")
-    rec.set_sinks(*sinks, default_blueprint=rl.blueprint())
-    rl.log_static_layout(rec)
-    return rec, where
 
 
 def lidar_mount_from_description(model: Any = None) -> tuple[np.ndarray, np.ndarray]:
@@ -127,7 +94,9 @@ class VizNode(Service):
 
     def setup(self) -> None:
         cfg: VizConfig = self.config
-        self.rec, where = open_recording(cfg)
+        self.rec, where = open_recordings(
+            cfg.application_id, cfg.output, cfg.connect_url, cfg.serve_port
+        )
         self._closed = False
         self._stats: dict[str, StreamStats] = {}
         self._locks: dict[str, threading.Lock] = {}
@@ -396,7 +365,7 @@ class VizNode(Service):
             self._report()
 
     def teardown(self) -> None:
-        rec = getattr(self, "rec", None)
+        rec: Recordings | None = getattr(self, "rec", None)
         if rec is None:
             return
         self._report(final=True)
@@ -406,9 +375,8 @@ class VizNode(Service):
         for lock in held:
             lock.release()
         t0 = time.monotonic()
-        rec.flush(timeout_sec=self.config.flush_timeout)
-        rec.disconnect()  # drops the sinks: the file gets its footer
-        self.log.info("recording closed", flush_s=round(time.monotonic() - t0, 3))
+        closed = rec.close(self.config.flush_timeout)
+        self.log.info("recording closed", close_s=round(time.monotonic() - t0, 3), **closed)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,6 +1,7 @@
 """Decoded quadmanip messages → Rerun archetypes (no transport: pure functions + small state).
 
-Every ``log_*`` function takes a decoded message and a ``rr.RecordingStream``, sets the
+Every ``log_*`` function takes a decoded message and a ``rr.RecordingStream`` (or anything
+:class:`RecordingLike`), sets the
 robot-time timeline (:data:`TIMELINE`, seconds of the message's ``stamp``) on the calling
 thread and logs under a fixed entity tree, so a recording from any run opens with the
 same layout (:func:`blueprint`)::
@@ -29,6 +30,7 @@ import math
 import re
 from collections import deque
 from collections.abc import Sequence
+from typing import Any, Protocol
 
 import numpy as np
 import rerun as rr
@@ -47,6 +49,7 @@ __all__ = [
     "JOINT_NAMES",
     "TIMELINE",
     "HeartbeatTracker",
+    "RecordingLike",
     "RateLimiter",
     "Trail",
     "VelocityFromPoses",
@@ -107,7 +110,15 @@ _ENTITY_RE = re.compile(r"[^A-Za-z0-9_\-]")
 # --------------------------------------------------------------------------- helpers
 
 
-def set_time(rec: rr.RecordingStream, stamp: float) -> None:
+class RecordingLike(Protocol):
+    """What the converters need of a recording: ``rr.RecordingStream`` or a tee of them."""
+
+    def log(self, entity_path: str, entity: Any, *extra: Any, static: bool = False) -> None: ...
+
+    def set_time(self, timeline: str, *, duration: float | None = None) -> None: ...
+
+
+def set_time(rec: RecordingLike, stamp: float) -> None:
     """Put the calling thread's :data:`TIMELINE` at ``stamp`` (Rerun's time is per thread)."""
     rec.set_time(TIMELINE, duration=float(stamp))
 
@@ -141,7 +152,7 @@ def camera_entity(camera: str) -> str:
     return f"{BASE}/{name}"
 
 
-def log_text(rec: rr.RecordingStream, path: str, stamp: float, text: str, level: str) -> None:
+def log_text(rec: RecordingLike, path: str, stamp: float, text: str, level: str) -> None:
     """One :class:`rr.TextLog` line at ``path`` (level: INFO, WARN, ERROR ...)."""
     set_time(rec, stamp)
     rec.log(path, rr.TextLog(text, level=level))
@@ -150,7 +161,7 @@ def log_text(rec: rr.RecordingStream, path: str, stamp: float, text: str, level:
 # --------------------------------------------------------------------------- static layout
 
 
-def log_static_layout(rec: rr.RecordingStream) -> None:
+def log_static_layout(rec: RecordingLike) -> None:
     """Static parts of the tree: world axes convention, series names, per-series colours.
 
     Logged once at start; the time series then carry bare :class:`rr.Scalars` batches whose
@@ -217,7 +228,7 @@ def blueprint() -> rrb.Blueprint:
 # --------------------------------------------------------------------------- robot state
 
 
-def log_lowstate(rec: rr.RecordingStream, msg: m.LowState) -> None:
+def log_lowstate(rec: RecordingLike, msg: m.LowState) -> None:
     """Joint positions/velocities/torques (16 series each), gripper gap/effort, IMU rates."""
     set_time(rec, msg.stamp)
     js = msg.joints
@@ -230,7 +241,7 @@ def log_lowstate(rec: rr.RecordingStream, msg: m.LowState) -> None:
     rec.log(f"{PLOTS}/imu/linear_acceleration", rr.Scalars(msg.imu.linear_acceleration))
 
 
-def log_odometry(rec: rr.RecordingStream, msg: m.Odometry) -> None:
+def log_odometry(rec: RecordingLike, msg: m.Odometry) -> None:
     """Estimated base pose → transform of :data:`BASE`; base-frame velocity → plots."""
     set_time(rec, msg.stamp)
     rec.log(
@@ -248,7 +259,7 @@ def log_odometry(rec: rr.RecordingStream, msg: m.Odometry) -> None:
 
 
 def log_velocity_estimate(
-    rec: rr.RecordingStream, source: str, stamp: float, vx: float, vy: float, wz: float
+    rec: RecordingLike, source: str, stamp: float, vx: float, vy: float, wz: float
 ) -> None:
     """Base-frame (vx, vy, wz) of one source (``cmd``, ``odom``, ``gt``) on shared plots, so
     commanded, estimated and true velocity overlay in one view per axis."""
@@ -257,13 +268,13 @@ def log_velocity_estimate(
         rec.log(f"{PLOTS}/velocity/{axis}/{source}", rr.Scalars(value))
 
 
-def log_velocity_command(rec: rr.RecordingStream, msg: m.BodyVelocityCommand) -> None:
+def log_velocity_command(rec: RecordingLike, msg: m.BodyVelocityCommand) -> None:
     """The body velocity command (locomotion/cmd_vel) as the ``cmd`` velocity series."""
     log_velocity_estimate(rec, "cmd", msg.stamp, msg.vx, msg.vy, msg.wz)
 
 
 def log_trail(
-    rec: rr.RecordingStream,
+    rec: RecordingLike,
     path: str,
     stamp: float,
     points: np.ndarray,
@@ -279,7 +290,7 @@ def log_trail(
     )
 
 
-def log_locomotion_debug(rec: rr.RecordingStream, msg: m.LocomotionDebug) -> None:
+def log_locomotion_debug(rec: RecordingLike, msg: m.LocomotionDebug) -> None:
     """Foot forces (vertical component, N, ground on robot), gait phase, scheduled
     contact, MPC solve time, and the MPC's predicted base positions over the horizon as a
     line in the odom frame (the estimator's frame, where the MPC plans)."""
@@ -297,7 +308,7 @@ def log_locomotion_debug(rec: rr.RecordingStream, msg: m.LocomotionDebug) -> Non
 
 
 def log_robot_body(
-    rec: rr.RecordingStream, trunk_half_size: np.ndarray, trunk_center: np.ndarray
+    rec: RecordingLike, trunk_half_size: np.ndarray, trunk_center: np.ndarray
 ) -> None:
     """Static trunk box in the base frame (the legs and arm are the skeleton's lines)."""
     rec.log(
@@ -307,9 +318,7 @@ def log_robot_body(
     )
 
 
-def log_skeleton(
-    rec: rr.RecordingStream, stamp: float, segments: np.ndarray, feet: np.ndarray
-) -> None:
+def log_skeleton(rec: RecordingLike, stamp: float, segments: np.ndarray, feet: np.ndarray) -> None:
     """The robot's stick figure (segments K×2×3) and foot centres (4×3), base frame."""
     set_time(rec, stamp)
     rec.log(
@@ -323,7 +332,7 @@ def log_skeleton(
 
 
 def log_foot_forces(
-    rec: rr.RecordingStream,
+    rec: RecordingLike,
     stamp: float,
     feet_base: np.ndarray,
     forces_world: np.ndarray,
@@ -353,7 +362,7 @@ def log_foot_forces(
 
 
 def log_rgbd(
-    rec: rr.RecordingStream,
+    rec: RecordingLike,
     msg: m.RgbdImage,
     *,
     rgb: bool = True,
@@ -404,7 +413,7 @@ def scan_points(msg: m.LaserScan) -> np.ndarray:
 
 
 def log_lidar_mount(
-    rec: rr.RecordingStream, position: Sequence[float], orientation_wxyz: Sequence[float]
+    rec: RecordingLike, position: Sequence[float], orientation_wxyz: Sequence[float]
 ) -> None:
     """Static base_T_lidar (from the robot description) so scans sit where the sensor is."""
     rec.log(
@@ -414,7 +423,7 @@ def log_lidar_mount(
     )
 
 
-def log_scan(rec: rr.RecordingStream, msg: m.LaserScan) -> int:
+def log_scan(rec: RecordingLike, msg: m.LaserScan) -> int:
     """LiDAR returns as Points3D under ``world/odom/base/lidar/scan``; returns the count."""
     pts = scan_points(msg)
     set_time(rec, msg.stamp)
@@ -425,7 +434,7 @@ def log_scan(rec: rr.RecordingStream, msg: m.LaserScan) -> int:
 # --------------------------------------------------------------------------- ground truth
 
 
-def log_gt_base(rec: rr.RecordingStream, msg: m.GroundTruthPoses) -> None:
+def log_gt_base(rec: RecordingLike, msg: m.GroundTruthPoses) -> None:
     """GROUND TRUTH base pose (entry named ``base``) → transform of ``world/gt/base``."""
     if "base" not in msg.names:
         return
@@ -437,7 +446,7 @@ def log_gt_base(rec: rr.RecordingStream, msg: m.GroundTruthPoses) -> None:
     )
 
 
-def log_gt_objects(rec: rr.RecordingStream, msg: m.GroundTruthPoses) -> None:
+def log_gt_objects(rec: RecordingLike, msg: m.GroundTruthPoses) -> None:
     """GROUND TRUTH object positions, labelled with their names, as one Points3D batch."""
     set_time(rec, msg.stamp)
     rec.log(
@@ -453,7 +462,7 @@ def log_gt_objects(rec: rr.RecordingStream, msg: m.GroundTruthPoses) -> None:
 
 
 def log_gt_contacts(
-    rec: rr.RecordingStream, msg: m.GroundTruthContacts, newton_to_m: float = 0.002
+    rec: RecordingLike, msg: m.GroundTruthContacts, newton_to_m: float = 0.002
 ) -> None:
     """GROUND TRUTH contact forces on ``body1`` as arrows at the contact points."""
     set_time(rec, msg.stamp)
@@ -470,7 +479,7 @@ def log_gt_contacts(
     )
 
 
-def log_judge(rec: rr.RecordingStream, msg: m.JudgeReport) -> None:
+def log_judge(rec: RecordingLike, msg: m.JudgeReport) -> None:
     """The judge's verdict as a text line and an ``in_place`` count series."""
     text = (
         f"judge t={msg.trial_time:.1f}s: {len(msg.in_place)}/{msg.total} in place"
@@ -524,7 +533,7 @@ class HeartbeatTracker:
 
 
 def log_heartbeat(
-    rec: rr.RecordingStream,
+    rec: RecordingLike,
     msg: m.Heartbeat,
     tracker: HeartbeatTracker,
     robot_time: float | None = None,
@@ -631,7 +640,7 @@ def odom_in_world(
 
 
 def log_odom_alignment(
-    rec: rr.RecordingStream, stamp: float, translation: np.ndarray, yaw: float
+    rec: RecordingLike, stamp: float, translation: np.ndarray, yaw: float
 ) -> None:
     """Place the odom frame in the world (display only; see :func:`odom_in_world`)."""
     set_time(rec, stamp)

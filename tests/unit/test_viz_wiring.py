@@ -9,21 +9,20 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+import rerun as rr
 from quadmanip.common import messages as m
 from quadmanip.common.config import ConfigError, load_config
 from quadmanip.common.robot_description import ROBOT_XML
 from quadmanip.services.viz.config import VizConfig
-from quadmanip.services.viz.node import (
-    VizNode,
-    lidar_mount_from_description,
-    resolve_output,
-)
+from quadmanip.services.viz.node import VizNode, lidar_mount_from_description
+from quadmanip.services.viz.sinks import resolve_output
 from rerun.chunk import RrdReader
 
 pytestmark = pytest.mark.unit
@@ -233,3 +232,20 @@ def test_node_throttles_counts_and_survives_bad_messages(node) -> None:
     # Logging after teardown is refused quietly (the bus may still deliver while closing).
     bus.deliver("sim/lowstate", _lowstate(9.0))
     assert n.stats()["lowstate"].received == 500
+
+
+def test_unreachable_viewer_does_not_hold_the_file_or_the_stop(tmp_path: Path) -> None:
+    # A live viewer that is not there: the file still closes complete, and the close
+    # returns within the stop budget (Rerun itself would wait ~5 s for the viewer).
+    from quadmanip.services.viz.sinks import open_recordings
+
+    out = tmp_path / "v.rrd"
+    recs, where = open_recordings("t", str(out), connect_url="rerun+http://127.0.0.1:9/proxy")
+    assert where[0] == f"file:{out}" and where[1].startswith("viewer:")
+    recs.set_time("robot_time", duration=1.0)
+    recs.log("plots/x", rr.Scalars(1.0))
+    t0 = time.monotonic()
+    closed = recs.close(timeout=0.5)
+    assert time.monotonic() - t0 < 1.5
+    assert closed["file"] and not closed["live"]
+    assert "/plots/x" in _entities(out)
