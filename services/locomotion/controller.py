@@ -149,6 +149,7 @@ class DebugInfo:
     foot_forces: np.ndarray = field(default_factory=lambda: np.zeros((4, 3)))
     predicted: np.ndarray = field(default_factory=lambda: np.zeros((0, 12)))
     mpc_step_s: float = 0.0
+    mpc_step_cpu_s: float = 0.0  # CPU time of the step (unaffected by other processes)
     mpc_solver_s: float = 0.0
     mpc_solved: bool = False
     mpc_status: str = ""
@@ -517,6 +518,7 @@ class LocomotionController:
     ) -> None:
         """Build the MPC problem around the COM and solve it (stores the first forces)."""
         t0 = time.perf_counter()
+        c0 = time.thread_time()
         p = self.mpc.params
         n = p.horizon
         self.mpc_tick += 1
@@ -547,3 +549,4 @@ class LocomotionController:
         self.debug.predicted = sol.predicted
         self.debug.mpc_solver_s = sol.solver_time_s
         self.debug.mpc_step_s = time.perf_counter() - t0
+        self.debug.mpc_step_cpu_s = time.thread_time() - c0
