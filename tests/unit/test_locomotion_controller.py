@@ -225,3 +225,18 @@ def test_arm_reaching_forward_with_half_a_kilo_stands_and_walks():
     run.walk((0.4, 0.0, 0.0), 6.0)
     assert not run.fell
     assert run.lin_rmse <= 0.15
+
+
+def test_sit_down_and_damp():
+    run = Run()
+    run.stand()
+    run.ctl.set_mode("sit")
+    run.until(4.5)
+    assert run.plant.true_position()[2] < 0.16  # folded legs, trunk low
+    q = run.plant.lowstate.joints.q[:12]
+    assert q[2::3] == pytest.approx([-2.7] * 4, abs=0.15)  # knees folded
+    run.ctl.set_mode("damp")
+    out = controller_step(run.ctl, run.plant.lowstate)
+    assert np.all(out.kp == 0.0) and np.all(out.tau_ff == 0.0) and np.all(out.kd > 0.0)
+    run.until(5.5)
+    assert run.plant.true_position()[2] < 0.16
