@@ -96,15 +96,16 @@ class LocomotionNode(Service):
                 self._reject("body_pose", exc)
 
     # ------------------------------------------------------------------ control loop
-    def _held_mass(self, js: m.JointState) -> float:
-        opt: NodeOptions = self.config.node
-        holding = (
-            js.gripper_effort > opt.grip_effort_threshold and js.gripper_gap > opt.grip_min_gap
-        )
-        return opt.held_object_mass if holding else 0.0
-
     def _on_lowstate(self, ls: m.LowState) -> None:
         with self.lock:
+            if self._last_cmd is not None and ls.tick < self._last_cmd.tick - 1:
+                # Ticks went backwards: the sim (or hardware adapter) restarted. Start over
+                # in damping, like a robot whose controller was just switched on.
+                self.log.warning("lowstate tick went back; restarting the controller",
+                                 tick=ls.tick, last=self._last_cmd.tick)  # fmt: skip
+                self.ctl = LocomotionController(self.config)
+                self._last_cmd = None
+                self._last_phase = self.ctl.phase
             if self._last_cmd is not None and ls.tick <= self._last_cmd.tick:
                 # A LowState seen before (the lockstep sim republishes while it waits):
                 # answer again with the same command instead of stepping the controller.
@@ -112,7 +113,7 @@ class LocomotionNode(Service):
                     self.pub_cmd.publish(self._last_cmd)
                 return
             self._last_stamp = float(ls.stamp)
-            self.ctl.held_mass = self._held_mass(ls.joints)
+            self.ctl.held_mass = held_mass_from_gripper(ls.joints, self.config.node)
             out = self.ctl.step(
                 ls.stamp,
                 ls.joints.q,
@@ -146,7 +147,7 @@ class LocomotionNode(Service):
     def _odometry(self, stamp: float) -> m.Odometry:
         est = self.ctl.est
         r = est.R
-        q = _rot_to_quat(r)
+        q = rot_to_quat(r)
         return m.Odometry(
             stamp=stamp,
             position=est.position,
@@ -168,7 +169,13 @@ class LocomotionNode(Service):
         )
 
 
-def _rot_to_quat(r: np.ndarray) -> np.ndarray:
+def held_mass_from_gripper(js: m.JointState, opt: NodeOptions) -> float:
+    """Mass assumed in the gripper: fingers squeezing on something count as holding."""
+    holding = js.gripper_effort > opt.grip_effort_threshold and js.gripper_gap > opt.grip_min_gap
+    return opt.held_object_mass if holding else 0.0
+
+
+def rot_to_quat(r: np.ndarray) -> np.ndarray:
     """Rotation matrix → unit quaternion [w, x, y, z] (Shepperd's method)."""
     tr = float(np.trace(r))
     if tr > 0.0:

@@ -222,8 +222,10 @@ def test_arm_reaching_forward_with_half_a_kilo_stands_and_walks():
     run.stand()
     run.until(3.0)
     assert np.abs(run.plant.lowstate.joints.q[12:16] - q_reach).max() < 0.1
-    run.walk((0.4, 0.0, 0.0), 6.0)
+    x0 = run.plant.true_position()[0]
+    run.walk((0.4, 0.0, 0.0), 9.0)
     assert not run.fell
+    assert run.plant.true_position()[0] - x0 >= 2.0
     assert run.lin_rmse <= 0.15
 
 
@@ -240,3 +242,25 @@ def test_sit_down_and_damp():
     assert np.all(out.kp == 0.0) and np.all(out.tau_ff == 0.0) and np.all(out.kd > 0.0)
     run.until(5.5)
     assert run.plant.true_position()[2] < 0.16
+
+
+def test_node_helpers_held_mass_and_quaternion():
+    from quadmanip.common import messages as m
+    from quadmanip.services.locomotion.controller import NodeOptions
+    from quadmanip.services.locomotion.node import held_mass_from_gripper, rot_to_quat
+    from quadmanip.services.locomotion.state_estimator import quat_to_rot
+
+    opt = NodeOptions(held_object_mass=0.5, grip_effort_threshold=2.0, grip_min_gap=0.005)
+    z = np.zeros(16)
+    squeezing = m.JointState(stamp=0.0, q=z, dq=z, tau=z, gripper_gap=0.03, gripper_effort=8.0)
+    empty = m.JointState(stamp=0.0, q=z, dq=z, tau=z, gripper_gap=0.001, gripper_effort=8.0)
+    open_ = m.JointState(stamp=0.0, q=z, dq=z, tau=z, gripper_gap=0.05, gripper_effort=0.0)
+    assert held_mass_from_gripper(squeezing, opt) == 0.5
+    assert held_mass_from_gripper(empty, opt) == 0.0  # closed on nothing
+    assert held_mass_from_gripper(open_, opt) == 0.0
+    rng = np.random.default_rng(2)
+    for _ in range(20):
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        q = q if q[0] >= 0 else -q
+        assert rot_to_quat(quat_to_rot(q)) == pytest.approx(q, abs=1e-9)
