@@ -3,7 +3,7 @@
 ``quadmanip service viz [--set output=run.rrd] [--set connect_url=rerun+http://host:9876/proxy]``
 
 Every input is subscribed latest-only except the low-rate events (judge verdicts,
-heartbeats): a slow recording never queues up on the bus, and what the bus overwrote is
+heartbeats, arm trajectories and gripper commands): a slow recording never queues up on the bus, and what the bus overwrote is
 counted (``bus_dropped``). Heavy streams are further throttled here, by robot time
 (``*_rate``) or frame count (``image_every``, ``scan_every``): counted as ``decimated``.
 A message the bus could not decode is counted by the bus (``decode_errors``); a message
@@ -82,6 +82,8 @@ class VizNode(Service):
         Input("locomotion/odometry", m.Odometry, latest_only=True, doc="base pose, trail"),
         Input("locomotion/debug", m.LocomotionDebug, latest_only=True, doc="MPC, gait, forces"),
         Input("locomotion/cmd_vel", m.BodyVelocityCommand, latest_only=True, doc="cmd velocity"),
+        Input("sim/arm_trajectory", m.ArmTrajectory, doc="commanded arm trajectory (plots)"),
+        Input("sim/gripper_command", m.GripperCommand, doc="commanded finger gap (plots)"),
         Input("sim/gt/base", m.GroundTruthPoses, latest_only=True, doc="GROUND TRUTH base"),
         Input("sim/gt/objects", m.GroundTruthPoses, latest_only=True, doc="GROUND TRUTH objects"),
         Input("sim/gt/contacts", m.GroundTruthContacts, latest_only=True, doc="GT contacts"),
@@ -147,6 +149,8 @@ class VizNode(Service):
         self._wire("odometry", "locomotion/odometry", self._on_odometry)
         self._wire("debug", "locomotion/debug", self._on_debug)
         self._wire("cmd_vel", "locomotion/cmd_vel", self._on_cmd_vel)
+        self._wire("arm_trajectory", "sim/arm_trajectory", self._on_arm_trajectory)
+        self._wire("gripper_command", "sim/gripper_command", self._on_gripper_command)
         self._wire("gt_base", "sim/gt/base", self._on_gt_base)
         self._wire("gt_objects", "sim/gt/objects", self._on_gt_objects)
         self._wire("gt_contacts", "sim/gt/contacts", self._on_gt_contacts)
@@ -175,8 +179,9 @@ class VizNode(Service):
         """Subscribe ``fn`` (returns True if it logged) with counting and error isolation.
 
         ``robot_time``: the stream's stamps are robot time and advance the bridge's clock
-        (heartbeats may carry wall time). Each stream has its own lock: its throttle state is touched by one callback at a
-        time, while streams run in parallel (a slow image never delays the joint plots).
+        (heartbeats may carry wall time). Each stream has its own lock: its throttle state
+        is touched by one callback at a time, while streams run in parallel (a slow image
+        never delays the joint plots).
         """
         stats = self._stats.setdefault(stream, StreamStats())
         lock = self._locks.setdefault(stream, threading.Lock())
@@ -276,6 +281,13 @@ class VizNode(Service):
         if not self._cmd.allow(msg.stamp):
             return False
         rl.log_velocity_command(self.rec, msg)
+        return True
+
+    def _on_arm_trajectory(self, msg: m.ArmTrajectory) -> bool:
+        return rl.log_arm_trajectory(self.rec, msg) > 0
+
+    def _on_gripper_command(self, msg: m.GripperCommand) -> bool:
+        rl.log_gripper_command(self.rec, msg)
         return True
 
     def _on_gt_base(self, msg: m.GroundTruthPoses) -> bool:

@@ -17,7 +17,8 @@ same layout (:func:`blueprint`)::
     world/odom/trajectory         odometry trail; world/odom/mpc_prediction the MPC horizon
     world/gt/...                  GROUND TRUTH (sim only): base, base_trajectory, objects,
                                   contacts — its own tree, never mixed with estimates
-    plots/...                     time series: joints, IMU, gripper, velocity (cmd/odom/gt),
+    plots/...                     time series: joints, arm (measured vs commanded trajectory),
+                                  IMU, gripper (gap vs command), velocity (cmd/odom/gt),
                                   locomotion (foot forces, gait phase, contact, MPC solve ms)
     log/...                       text logs: judge verdicts, heartbeats (state changes), viz
 
@@ -55,9 +56,11 @@ __all__ = [
     "VelocityFromPoses",
     "blueprint",
     "camera_entity",
+    "log_arm_trajectory",
     "log_foot_forces",
     "log_gt_base",
     "log_gt_contacts",
+    "log_gripper_command",
     "log_gt_objects",
     "log_heartbeat",
     "log_judge",
@@ -116,6 +119,8 @@ class RecordingLike(Protocol):
     def log(self, entity_path: str, entity: Any, *extra: Any, static: bool = False) -> None: ...
 
     def set_time(self, timeline: str, *, duration: float | None = None) -> None: ...
+
+    def send_columns(self, entity_path: str, indexes: Any, columns: Any) -> None: ...
 
 
 def set_time(rec: RecordingLike, stamp: float) -> None:
@@ -177,6 +182,13 @@ def log_static_layout(rec: RecordingLike) -> None:
     rec.log(f"{GT}/base", rr.TransformAxes3D(0.2), static=True)
     for quantity in ("position", "velocity", "torque"):
         rec.log(f"{PLOTS}/joints/{quantity}", rr.SeriesLines(names=list(JOINT_NAMES)), static=True)
+    arm = list(JOINT_NAMES[12:])
+    rec.log(f"{PLOTS}/arm/q", rr.SeriesLines(names=arm), static=True)
+    rec.log(
+        f"{PLOTS}/arm/q_cmd",
+        rr.SeriesLines(names=[f"{j} cmd" for j in arm], widths=[1.0] * len(arm)),
+        static=True,
+    )
     rec.log(f"{PLOTS}/imu/angular_velocity", rr.SeriesLines(names=["wx", "wy", "wz"]), static=True)
     rec.log(
         f"{PLOTS}/imu/linear_acceleration", rr.SeriesLines(names=["ax", "ay", "az"]), static=True
@@ -235,10 +247,40 @@ def log_lowstate(rec: RecordingLike, msg: m.LowState) -> None:
     rec.log(f"{PLOTS}/joints/position", rr.Scalars(js.q))
     rec.log(f"{PLOTS}/joints/velocity", rr.Scalars(js.dq))
     rec.log(f"{PLOTS}/joints/torque", rr.Scalars(js.tau))
+    rec.log(f"{PLOTS}/arm/q", rr.Scalars(js.q[12:]))
     rec.log(f"{PLOTS}/gripper/gap", rr.Scalars(js.gripper_gap))
     rec.log(f"{PLOTS}/gripper/effort", rr.Scalars(js.gripper_effort))
     rec.log(f"{PLOTS}/imu/angular_velocity", rr.Scalars(msg.imu.angular_velocity))
     rec.log(f"{PLOTS}/imu/linear_acceleration", rr.Scalars(msg.imu.linear_acceleration))
+
+
+def log_arm_trajectory(rec: RecordingLike, msg: m.ArmTrajectory, max_points: int = 500) -> int:
+    """The commanded arm trajectory, each point at its own (future) robot time, beside the
+    measured arm joints (``plots/arm/q`` from LowState): tracking error at a glance.
+
+    Logged once as columns; a trajectory that supersedes another mid-way leaves the old
+    tail visible (it is what was sent). Long ones are thinned to ``max_points`` (the last
+    point always kept). Returns the number of points logged.
+    """
+    n = len(msg.t)
+    if n == 0:
+        return 0
+    idx = np.arange(n)
+    if n > max_points:
+        idx = np.unique(np.append(np.linspace(0, n - 1, max_points).astype(int), n - 1))
+    rec.send_columns(
+        f"{PLOTS}/arm/q_cmd",
+        indexes=[rr.TimeColumn(TIMELINE, duration=msg.t[idx])],
+        columns=rr.Scalars.columns(scalars=msg.q[idx]),
+    )
+    return len(idx)
+
+
+def log_gripper_command(rec: RecordingLike, msg: m.GripperCommand) -> None:
+    """Commanded finger gap (m) beside the measured one, and the force limit (N)."""
+    set_time(rec, msg.stamp)
+    rec.log(f"{PLOTS}/gripper/gap_cmd", rr.Scalars(msg.gap))
+    rec.log(f"{PLOTS}/gripper/max_force_cmd", rr.Scalars(msg.max_force))
 
 
 def log_odometry(rec: RecordingLike, msg: m.Odometry) -> None:

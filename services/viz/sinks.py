@@ -48,6 +48,10 @@ class Recordings:
         for s in self.streams:
             s.set_time(timeline, **kwargs)
 
+    def send_columns(self, entity_path: str, indexes: Any, columns: Any) -> None:
+        for s in self.streams:
+            s.send_columns(entity_path, indexes=indexes, columns=columns)
+
     def close(self, timeout: float) -> dict[str, bool]:
         """Flush and close: the file (complete with its footer) within ``timeout``, then the
         live stream in a daemon thread, abandoned after a short wait if its viewer is gone.

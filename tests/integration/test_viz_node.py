@@ -29,6 +29,8 @@ STREAMS = (
     "odometry",
     "debug",
     "cmd_vel",
+    "arm_trajectory",
+    "gripper_command",
     "gt_base",
     "gt_objects",
     "gt_contacts",
@@ -104,12 +106,23 @@ def _messages(t: float) -> dict[str, m.Message]:
         "sim/gt/judge": m.JudgeReport(
             stamp=t, trial_time=t, in_place=["cup"], misplaced=["banana"], total=2
         ),
+        "sim/arm_trajectory": m.ArmTrajectory(
+            stamp=t,
+            t=[t, t + 0.5],
+            q=[[0, 0, 0, 0], [0.2, -0.2, 0, 0]],
+            dq=np.zeros((2, 4)),
+            kp=[30] * 4,
+            kd=[1] * 4,
+        ),
+        "sim/gripper_command": m.GripperCommand(stamp=t, gap=0.05, max_force=10.0),
         "sim/heartbeat": m.Heartbeat(stamp=t, service="sim", seq=int(t * 10), state="running"),
     }
 
 
 KINDS = {
     "sim/lowstate": "control",
+    "sim/arm_trajectory": "control",
+    "sim/gripper_command": "control",
     "locomotion/cmd_vel": "control",
     "sim/gt/base": "gt",
     "sim/gt/objects": "gt",
@@ -180,6 +193,8 @@ def test_viz_records_every_stream(zenoh_router, spawn, bus_factory, tmp_path: Pa
         "/plots/locomotion/foot_force_z",
         "/plots/locomotion/mpc_solve_ms",
         "/plots/velocity/vx/cmd",
+        "/plots/arm/q_cmd",
+        "/plots/gripper/gap_cmd",
         "/plots/velocity/vx/odom",
         "/plots/velocity/vx/gt",
         "/world/gt/base",

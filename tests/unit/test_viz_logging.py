@@ -98,6 +98,8 @@ def test_lowstate_plots_every_joint_on_robot_time(recording: Recording) -> None:
     np.testing.assert_allclose(vel["Scalars:scalars"], 2 * q)
     tau = [r for r in rows["/plots/joints/torque"] if not r["static"]][0]
     np.testing.assert_allclose(tau["Scalars:scalars"], 10 * q)
+    arm = [r for r in rows["/plots/arm/q"] if not r["static"]][0]
+    np.testing.assert_allclose(arm["Scalars:scalars"], q[12:])  # arm j1..j4 on their own plot
     assert rows["/plots/gripper/gap"][0]["Scalars:scalars"] == pytest.approx([0.061])
     assert rows["/plots/gripper/effort"][0]["Scalars:scalars"] == pytest.approx([3.5])
     acc = [r for r in rows["/plots/imu/linear_acceleration"] if not r["static"]][0]
@@ -415,3 +417,31 @@ def test_heartbeat_with_wall_clock_stamp_lands_at_robot_time(recording: Recordin
     assert rl.log_heartbeat(recording.rec, hb, rl.HeartbeatTracker(), robot_time=12.5)
     (row,) = recording.read()["/log/heartbeat/locomotion"]
     assert row[rl.TIMELINE] == pytest.approx(12.5)
+
+
+def test_arm_trajectory_points_land_at_their_own_times(recording: Recording) -> None:
+    t = 10.0 + np.linspace(0.0, 1.5, 7)
+    q = np.column_stack([np.linspace(0, 1.2, 7), -np.linspace(0, 0.6, 7), np.zeros(7), t - 10])
+    traj = m.ArmTrajectory(stamp=10.0, t=t, q=q, dq=np.zeros((7, 4)), kp=[30] * 4, kd=[1] * 4)
+    assert rl.log_arm_trajectory(recording.rec, traj) == 7
+    long_t = np.linspace(0.0, 9.0, 2001)
+    long = m.ArmTrajectory(
+        stamp=0.0,
+        t=long_t,
+        q=np.tile(long_t[:, None], (1, 4)),
+        dq=np.zeros((2001, 4)),
+        kp=[30] * 4,
+        kd=[1] * 4,
+    )
+    assert rl.log_arm_trajectory(recording.rec, long, max_points=100) <= 101
+    rl.log_gripper_command(recording.rec, m.GripperCommand(stamp=10.2, gap=0.04, max_force=15.0))
+    rows = recording.read()
+    cmd = [r for r in rows["/plots/arm/q_cmd"] if not r["static"]]
+    first = [r for r in cmd if r[rl.TIMELINE] >= 10.0]
+    np.testing.assert_allclose([r[rl.TIMELINE] for r in first], t, atol=1e-9)
+    np.testing.assert_allclose([r["Scalars:scalars"] for r in first], q, atol=1e-12)
+    thinned = [r for r in cmd if r[rl.TIMELINE] < 10.0]
+    assert 90 <= len(thinned) <= 101
+    assert max(r["Scalars:scalars"][0] for r in thinned) == pytest.approx(9.0)  # last kept
+    assert rows["/plots/gripper/gap_cmd"][0]["Scalars:scalars"] == [0.04]
+    assert rows["/plots/gripper/max_force_cmd"][0][rl.TIMELINE] == pytest.approx(10.2)
