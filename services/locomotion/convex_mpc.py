@@ -131,17 +131,13 @@ class ConvexMpc:
         diag = np.concatenate([w.q_theta, w.q_p, w.q_omega, w.q_v, [0.0]])
         self._l_diag = np.tile(diag, p.horizon)  # (N·13,)
         self._r_u = float(w.r_u)
-        n = p.horizon
-        # Block lower-triangular index map for the condensed input matrix.
-        ii, jj = np.tril_indices(n)
-        self._ii, self._jj = ii, jj
-        self._pow_idx = ii - jj
         # Friction pyramid rows for one foot: [fx - μfz ≤ 0, -fx - μfz ≤ 0, fy..., -fy...].
         mu = p.mu
         self._cone = np.array(
             [[1.0, 0.0, -mu], [-1.0, 0.0, -mu], [0.0, 1.0, -mu], [0.0, -1.0, -mu]]
         )
         self._n_solves = 0
+        self._cones: dict[int, np.ndarray] = {}
 
     def _settings(self, solver: piqp.DenseSolver | piqp.SparseSolver) -> None:
         s = solver.settings
@@ -178,13 +174,20 @@ class ConvexMpc:
         i_world = rz @ inertia_body @ rz.T
         i_inv = np.linalg.inv(i_world)
         bc = np.zeros((n, NX, NU))
-        bc[:, 6:9, :] = np.einsum("ij,nfjk->nifk", i_inv, skew(foot_rel)).reshape(n, 3, NU)
+        bc[:, 6:9, :] = (
+            (i_inv @ skew(foot_rel).reshape(n * 4, 3, 3))
+            .reshape(n, 4, 3, 3)
+            .transpose(0, 2, 1, 3)
+            .reshape(n, 3, NU)
+        )
         bc[:, 9:12, :] = np.tile(np.eye(3) / mass, (1, 4))[None]
-        bd = np.einsum("ij,njk->nik", np.eye(NX) * dt + a * (0.5 * dt * dt), bc)
-        # Blocks A^(i-j) B_j for i ≥ j.
-        blocks = np.einsum("bij,bjk->bik", apow[self._pow_idx], bd[self._jj])
-        bqp = np.zeros((n, NX, n, NU))
-        bqp[self._ii, :, self._jj, :] = blocks
+        bd = (np.eye(NX) * dt + a * (0.5 * dt * dt)) @ bc  # (n, 13, 12)
+        # Block rows by recursion: row i = A_d · row (i−1), plus B_i on the diagonal.
+        bqp = np.zeros((n, NX, n * NU))
+        bqp[0, :, 0:NU] = bd[0]
+        for i in range(1, n):
+            bqp[i, :, : i * NU] = ad @ bqp[i - 1, :, : i * NU]
+            bqp[i, :, i * NU : (i + 1) * NU] = bd[i]
         aqp = apow[1:].reshape(n * NX, NX)
         return aqp, bqp.reshape(n * NX, n * NU)
 
@@ -238,7 +241,9 @@ class ConvexMpc:
         u_des = desired_forces(foot_rel, contact, mass)
         grad = lb.T @ (aqp @ x0a - xr) - self._r_u * u_des.reshape(-1)[cols]
         nf = cols.size // 3
-        g_mat = np.kron(np.eye(nf), self._cone)
+        g_mat = self._cones.get(nf)
+        if g_mat is None:
+            g_mat = self._cones[nf] = np.asfortranarray(np.kron(np.eye(nf), self._cone))
         h_u = np.zeros(4 * nf)
         x_l = np.full(cols.size, -np.inf)
         x_u = np.full(cols.size, np.inf)
@@ -271,7 +276,7 @@ class ConvexMpc:
             solver = piqp.DenseSolver()
             self._settings(solver)
             solver.setup(
-                np.asfortranarray(hess), grad, None, None, np.asfortranarray(g_mat), None, h_u,
+                np.asfortranarray(hess), grad, None, None, g_mat, None, h_u,
                 x_l, x_u,
             )  # fmt: skip
         else:
