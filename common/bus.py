@@ -127,6 +127,10 @@ class BusConfig:
     error_log_period_s: float = 1.0
     # Whether QM_ZENOH_* environment variables may override this config.
     env_override: bool = True
+    # Topic whose Clock stamps are robot time (the sim publishes sim time there; a hardware
+    # adapter publishes wall time on the same key). Services stamp heartbeats with it.
+    # Empty: stamp with wall time.
+    robot_clock: str = "sim/clock"
 
     def __post_init__(self) -> None:
         if self.mode not in ("peer", "client", "router"):

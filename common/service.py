@@ -444,6 +444,8 @@ def run_service(
     svc: Service | None = None
     try:
         bus = Bus(bus_config, robot=args.robot)
+        if bus_config.robot_clock:
+            bus.follow_clock(bus_config.robot_clock)
         svc = cls(bus, config, args)
         holder["svc"] = svc
         if stop_event.is_set():

@@ -150,12 +150,20 @@ def test_action_goal_feedback_result_reject_and_cancel_across_processes(relay):
 def test_service_runtime_heartbeat_and_clean_sigterm_stop(relay):
     _, child, bus = relay
     beats: queue.Queue = queue.Queue()
-    bus.subscribe("relay/heartbeat", Heartbeat, beats.put)
-    first = beats.get(timeout=5)
-    second = beats.get(timeout=3)
+    bus.subscribe("relay/heartbeat", Heartbeat, lambda m: beats.put((time.monotonic(), m)))
+    # Robot time comes from sim/clock (configs/bus.toml robot_clock): heartbeats carry it.
+    clock = bus.publisher("sim/clock", Clock, kind="sensor")
+    deadline = time.monotonic() + 5
+    while time.monotonic() < deadline:
+        clock.publish(Clock(stamp=42.5))
+        (t1, first) = beats.get(timeout=5)
+        if first.stamp == 42.5:
+            break
+    (t2, second) = beats.get(timeout=3)
     assert first.service == "relay" and first.state == "running"
+    assert first.stamp == 42.5 and second.stamp == 42.5
     assert second.seq == first.seq + 1
-    assert 0.5 < second.stamp - first.stamp < 1.5  # 1 Hz
+    assert 0.5 < t2 - t1 < 1.5  # 1 Hz
     t0 = time.monotonic()
     child.signal(signal.SIGTERM)
     code = child.wait(5)
