@@ -77,7 +77,7 @@ def _grasp_trial(name: str, where: str, rng: np.random.Generator) -> dict[str, A
     surface = 0.0 if where == "floor" else TABLE_HEIGHT
     approach = "horizontal" if where == "table" and o.size[2] > TALL else "vertical"
     yaw = (
-        rng.uniform(-0.3, 0.3)
+        rng.uniform(-0.15, 0.15)
         if approach == "horizontal"
         else rng.uniform(-math.pi / 2, math.pi / 2)
     )
@@ -87,8 +87,16 @@ def _grasp_trial(name: str, where: str, rng: np.random.Generator) -> dict[str, A
     h.settle(0.3)
     z0 = float(h.object_pos(name)[2])
     out: dict[str, Any] = {"object": name, "where": where, "approach": approach, "yaw": float(yaw)}
-    try:
+    gs = grasp_from_ground_truth(h, name, surface, approach)
+    if abs(gs.position_base[1]) > 0.05:
+        # the grasp point of an off-centre part lies beside the body axis: stand the robot
+        # in front of it instead (what navigation does), i.e. move the scene by -y
+        pos = (pos[0], pos[1] - float(gs.position_base[1]), pos[2])
+        h = SimHarness([PlacedObject(name, pos, yaw=float(yaw))], boxes)
+        h.settle(0.3)
+        z0 = float(h.object_pos(name)[2])
         gs = grasp_from_ground_truth(h, name, surface, approach)
+    try:
         plan = plan_grasp(geom, cfg, gs.position_base, gs.approach, gs.yaw, gs.width)
     except GraspRejected as exc:
         out.update(success=False, reason=str(exc), time_s=None)
@@ -135,8 +143,10 @@ def _place_trial(name: str) -> dict[str, Any]:
     surface = 0.0 if cont.on == "floor" else TABLE_HEIGHT
     o = cat.objects[name]
     tall = surface > 0 and o.size[2] > TALL  # grasped horizontally: needs more room
-    cx = 0.55 if cont.on == "floor" or tall else 0.48
-    ox = 0.35 if tall else 0.31
+    # object in front, container right behind it (a stand-in for navigation's approach)
+    ox = 0.40 if tall else 0.33
+    obj_half = 0.5 * (o.size[0] if tall else max(o.size[:2]))
+    cx = ox + obj_half + 0.03 + 0.5 * min(cont.size[:2])
     boxes = container_boxes(place, cx, surface) + (table_boxes(length=0.7) if surface else [])
     start = PlacedObject(name, (ox, 0.0, surface + o.size[2] / 2 + 0.001), yaw=0.0 if tall else 0.2)
     h = SimHarness([start], boxes)
@@ -156,7 +166,8 @@ def _place_trial(name: str) -> dict[str, Any]:
     hang = float(h.tcp_world()[2] - (h.object_pos(name)[2] - o.size[2] / 2))
     ix, iy, height = container_inner(place, cx)
     target = np.array([cx - 0.6 * ix, 0.0, surface + height])
-    yaw = 0.0 if max(o.size[0], o.size[1]) > 2 * ix else None
+    # a long object goes in along the container's long side (y): fingers close along x
+    yaw = math.pi / 2 if max(o.size[0], o.size[1]) > 2 * ix else None
     try:
         pplan = plan_place(
             geom, cfg, h.world_to_base(target), h.observation().q_arm, hang, g.body, yaw

@@ -93,7 +93,10 @@ def plan_place(
             # approach and retract as high as reachable, at least 4 cm (fingertips clear)
             for up in (g.retract_height, 0.07, 0.04):
                 transit = ArmTarget(target.x, z_rel + min(up, TRANSIT_CLEARANCE), pt, roll)
-                retract = ArmTarget(target.x, z_rel + up, pt, roll)
+                # back out along the tool axis (up for a vertical tool, back for a level one)
+                retract = ArmTarget(
+                    target.x - up * math.cos(pt), z_rel + up * math.sin(pt), pt, roll
+                )
                 lines = [*_line(transit, release, 6), *_line(release, retract, 6)]
                 why = _reachable(geom, lines, q_now)
                 if not why:

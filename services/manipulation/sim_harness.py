@@ -382,6 +382,13 @@ def _part_extent(g: object) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(g.pos, dtype=float), np.abs(rot.reshape(3, 3)) @ h  # type: ignore[attr-defined]
 
 
+# Where a person would pinch a few part-built objects (object frame: centre, half extents):
+# the clamp's bar between its jaws (its bounding-box centre is next to a jaw).
+GRASP_HINTS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
+    "clamp": ((-0.027, 0.0545, 0.0), (0.02, 0.008, 0.010)),
+}
+
+
 def grasp_from_ground_truth(
     h: SimHarness, name: str, surface_z: float, approach: str = "vertical", max_width: float = 0.085
 ) -> GraspSpec:
@@ -425,7 +432,10 @@ def grasp_from_ground_truth(
             h.world_to_base(pt), "vertical", ang - math.pi / 2 - base_yaw, v.wall + 0.01
         )
     parts = object_parts(spec)
-    if spec.shape == "parts":
+    if name in GRASP_HINTS:
+        centre, half = GRASP_HINTS[name]
+        centre, half = np.asarray(centre, dtype=float), np.asarray(half, dtype=float)
+    elif spec.shape == "parts":
         vols = []
         for g in parts:
             _, he = _part_extent(g)
