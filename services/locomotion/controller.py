@@ -207,7 +207,6 @@ class LocomotionController:
         self._liftoff = np.zeros((4, 3))
         self._td_target = np.zeros((4, 3))
         self._stand_yaw = 0.0
-        self._stand_xy = np.zeros(2)
         self._stop_requested = False
         self._auto_walk = True
         self.mpc_tick = 0
@@ -271,10 +270,14 @@ class LocomotionController:
             raise CommandError(f"velocity commands need mode stand or walk (now {self.mode})")
         self.cmd_vel = v
         self.cmd_vel_time = float(now)
-        if self.phase in ("balance", "stopping") and np.any(np.abs(v) > 1e-6):
+        if np.any(np.abs(v) > 1e-6):
             if self.phase == "balance":
                 self._auto_walk = True
-            self._start_walk()
+                self._start_walk()
+            elif self.phase in ("walk", "stopping"):
+                # Keep trotting: the gait clock runs on (no jump in the swing phase).
+                self.phase = "walk"
+                self._stop_requested = False
             self.mode = "walk"
 
     def set_body_pose(
@@ -322,7 +325,6 @@ class LocomotionController:
         rpy = rot_to_rpy(quat_to_rot(quat))
         self.ref.reset(self.est.position, float(rpy[2]))
         self._stand_yaw = float(rpy[2])
-        self._stand_xy = np.mean(self.est.x[6:18].reshape(4, 3)[:, :2], axis=0)
         self.body_pose = np.zeros(6)
         if self.mode == "walk":
             self.mode = "stand"
@@ -417,7 +419,6 @@ class LocomotionController:
                 self.cmd_vel = np.zeros(3)
                 self._stand_yaw = float(rpy[2])
                 self.ref.reset(pos, float(rpy[2]))
-                self._stand_xy = np.mean(self.est.x[6:18].reshape(4, 3)[:, :2], axis=0)
                 walking = False
                 contact, progress = np.ones(4, dtype=bool), np.full(4, -1.0)
         # Reference target (eqs. 10–12).
