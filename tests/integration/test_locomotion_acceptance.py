@@ -7,8 +7,9 @@ commands and judges from the sim's ground truth (`sim/gt/base`), which the locom
 service never reads. Commands are timed in sim time (from `sim/clock`), since lockstep runs
 at whatever speed the machine allows.
 
-The default suite runs the short stand → trot → stop run; the long runs (60 s stand, every
-velocity, the 10 m route through the doorway, the push, body poses) are marked `slow`.
+The default suite runs stand → trot → stop, the push and the body poses (≈ 15 s each); the
+long runs (60 s stand, every velocity command, the 10 m route through the doorway) are
+marked `slow`.
 """
 
 from __future__ import annotations
@@ -187,7 +188,6 @@ def test_tracks_every_velocity_command(stack):
         assert yaw <= 0.15, f"{v}: {yaw:.3f} rad/s"
 
 
-@pytest.mark.slow
 def test_recovers_from_lateral_push_while_trotting_in_place(stack):
     t = stack.stand_up()
     stack.pub_mode.publish(m.LocomotionMode(stamp=t, mode="walk"))
@@ -205,7 +205,6 @@ def test_recovers_from_lateral_push_while_trotting_in_place(stack):
     assert np.abs(body_velocities(stack.gt_between(t_push + 2.5, t_push + 3.0))[:, :2]).mean() < 0.1
 
 
-@pytest.mark.slow
 def test_crouch_and_shift_over_zenoh(stack):
     t = stack.stand_up()
     p0, _ = stack.pose_at(t)
