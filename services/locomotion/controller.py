@@ -120,6 +120,14 @@ class LocomotionConfig:
     gains: LegGains = field(default_factory=LegGains)
     node: NodeOptions = field(default_factory=NodeOptions)
 
+    def __post_init__(self) -> None:
+        if self.profile not in self.profiles:
+            raise ValueError(f"unknown profile {self.profile!r} (have {sorted(self.profiles)})")
+        if self.node.start_mode not in ("damp", "stand"):
+            raise ValueError(f"node.start_mode must be damp or stand, not {self.node.start_mode!r}")
+        if self.control_dt <= 0.0 or self.cmd_timeout <= 0.0:
+            raise ValueError("control_dt and cmd_timeout must be > 0")
+
 
 def load_locomotion_config(name: str = "locomotion", **overrides: object) -> LocomotionConfig:
     """Load configs/<name>.toml (overrides as dotted keys, e.g. profile="paper")."""

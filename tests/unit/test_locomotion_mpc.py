@@ -134,3 +134,19 @@ def test_bad_inputs_raise():
         mpc.solve(np.zeros(11), np.zeros((6, 12)), FEET, np.ones((6, 4), bool), MASS, INERTIA)
     with pytest.raises(ValueError):
         ConvexMpc(MpcParams(backend="nope"))
+
+
+def test_config_file_loads_both_profiles_and_rejects_typos():
+    from quadmanip.common.config import ConfigError
+    from quadmanip.services.locomotion.controller import load_locomotion_config
+
+    cfg = load_locomotion_config()
+    assert cfg.profile == "tuned"
+    assert cfg.profiles["paper"].weights == PAPER  # Table 3 as printed
+    assert cfg.profiles["paper"].gait.t_swing == 0.3 and cfg.profiles["paper"].gait.t_stance == 0.1
+    assert cfg.mpc.horizon == 6 and cfg.mpc.dt == pytest.approx(0.03)
+    assert load_locomotion_config(profile="paper").profile == "paper"
+    with pytest.raises(ConfigError):
+        load_locomotion_config(profile="nope")
+    with pytest.raises(ConfigError):
+        load_locomotion_config(**{"mpc.horizn": 6})
