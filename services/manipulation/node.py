@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Any
 
 import numpy as np
 from quadmanip.common import messages as m
@@ -41,33 +40,16 @@ from quadmanip.services.manipulation.primitive import (
     Command,
     GripperCmd,
     Observation,
+    PostureMove,
     Primitive,
     Status,
 )
 from quadmanip.services.manipulation.trajectory import TrajectoryError
 
-__all__ = ["ManipulationNode", "PostureMove", "main"]
+__all__ = ["ManipulationNode", "main"]
 
 DEFAULT_HANG = 0.05
 ARM = slice(12, 16)
-
-
-class PostureMove(Primitive):
-    """Joint-space move to a named posture (limits enforced by the planner)."""
-
-    name = "move_to_posture"
-
-    def __init__(
-        self, geom: ArmGeometry, cfg: ManipulationConfig, q_goal: np.ndarray, **kw: Any
-    ) -> None:
-        super().__init__(geom, cfg, **kw)
-        self.q_goal = np.asarray(q_goal, dtype=float)
-
-    def script(self):  # noqa: ANN201 - generator type from Primitive
-        """One synchronised quintic move."""
-        self.stage("moving", 0.1)
-        yield []
-        yield from self.move_joints(self.q_goal)
 
 
 class ManipulationNode(Service):

@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections.abc import Generator
 from dataclasses import dataclass, field
 from enum import StrEnum
+from typing import Any
 
 import numpy as np
 from quadmanip.services.manipulation.arm_kinematics import ArmGeometry
@@ -27,6 +28,7 @@ from quadmanip.services.manipulation.trajectory import (
 
 __all__ = [
     "ArmCommand",
+    "PostureMove",
     "BodyPoseRequest",
     "Command",
     "GripperCmd",
@@ -251,3 +253,21 @@ class Primitive:
         while self.monitor.state is GripState.CLOSING:
             obs = yield []
         del obs
+
+
+class PostureMove(Primitive):
+    """Joint-space move to a named posture (limits enforced by the planner)."""
+
+    name = "move_to_posture"
+
+    def __init__(
+        self, geom: ArmGeometry, cfg: ManipulationConfig, q_goal: np.ndarray, **kw: Any
+    ) -> None:
+        super().__init__(geom, cfg, **kw)
+        self.q_goal = np.asarray(q_goal, dtype=float)
+
+    def script(self):  # noqa: ANN201 - generator type from Primitive
+        """One synchronised quintic move."""
+        self.stage("moving", 0.1)
+        yield []
+        yield from self.move_joints(self.q_goal)

@@ -45,8 +45,11 @@ __all__ = [
     "SimHarness",
     "container_boxes",
     "container_inner",
+    "drawer_mouth",
+    "drawer_place_world",
     "drawer_world",
     "grasp_from_ground_truth",
+    "in_region",
     "table_boxes",
 ]
 
@@ -534,3 +537,56 @@ def drawer_world(which: str, handle_arm_x: float = 0.44, scenario: object | None
         house.robot_start, position=(hp[0] - mount_x - handle_arm_x, hp[1]), yaw=0.0
     )
     return build_world(scenario, robot=True, house=dataclasses.replace(house, robot_start=start))  # type: ignore[arg-type]
+
+
+def drawer_place_world(
+    name: str, stool_height: float = 0.20, ahead: float = 0.25, yaw: float = 0.0
+) -> object:
+    """The house, the robot square in front of the top drawer, and object ``name`` on a
+    stool ``ahead`` m in front of the base (a low side table, stand-in for navigation
+    bringing the object within reach of the drawer)."""
+    import dataclasses
+
+    from quadmanip.sim.scenarios import Placement, Scenario
+
+    spec = load_catalogue().objects[name]
+    w0 = drawer_world("top")
+    bx, by = w0.robot_start[:2]  # type: ignore[attr-defined]
+    z = stool_height + spec.size[2] / 2 + 0.001
+    c, sn = math.cos(yaw / 2), math.sin(yaw / 2)
+    sc = Scenario(
+        "drawer-place",
+        0,
+        (Placement(name, "stool", (bx + ahead, by, z), (c, 0.0, 0.0, sn)),),
+    )
+    world = drawer_world("top", scenario=sc)
+    world.spec.worldbody.add_geom(  # type: ignore[attr-defined]
+        name="stool",
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=[0.06, 0.08, stool_height / 2],
+        pos=[bx + ahead, by, stool_height / 2],
+        group=0,
+    )
+    return dataclasses.replace(world, model=world.spec.compile())  # type: ignore[attr-defined]
+
+
+def drawer_mouth(h: SimHarness, world: object, which: str = "top") -> tuple[np.ndarray, float]:
+    """GROUND TRUTH: the middle of an open drawer's exposed opening (world) and the height
+    of its front panel top (what a place must clear)."""
+    body = h.data.body(world.drawer_bodies[which])  # type: ignore[attr-defined]
+    rot = body.xmat.reshape(3, 3)
+    jname = world.drawer_joints[which]  # type: ignore[attr-defined]
+    opened = float(h.data.qpos[h.model.joint(jname).qposadr[0]])
+    inner = body.xpos - rot[:, 0] * 0.018  # drawer frame x points out of the cabinet
+    mouth = inner - rot[:, 0] * (opened - 0.018 - 0.02) / 2
+    front_top = float(body.xpos[2]) + 0.175
+    return mouth.copy(), front_top
+
+
+def in_region(h: SimHarness, world: object, region: str, name: str) -> bool:
+    """GROUND TRUTH: is object ``name`` inside deposit region ``region`` (judge's box)?"""
+    reg = next(r for r in world.regions if r.name == region)  # type: ignore[attr-defined]
+    body = h.data.body(reg.body)
+    rot = body.xmat.reshape(3, 3)
+    loc = rot.T @ (h.object_pos(name) - body.xpos) - np.asarray(reg.center)
+    return bool(np.all(np.abs(loc) < np.asarray(reg.half_size)))

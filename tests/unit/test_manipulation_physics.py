@@ -17,15 +17,19 @@ from quadmanip.services.manipulation.config import load_manipulation_config
 from quadmanip.services.manipulation.drawer import DrawerPrimitive, plan_drawer
 from quadmanip.services.manipulation.grasp import GraspPrimitive, plan_grasp
 from quadmanip.services.manipulation.place import PlacePrimitive, plan_place
-from quadmanip.services.manipulation.primitive import Status
+from quadmanip.services.manipulation.postures import resolve_postures
+from quadmanip.services.manipulation.primitive import PostureMove, Status
 from quadmanip.services.manipulation.sim_harness import (
     TABLE_HEIGHT,
     PlacedObject,
     SimHarness,
     container_boxes,
     container_inner,
+    drawer_mouth,
+    drawer_place_world,
     drawer_world,
     grasp_from_ground_truth,
+    in_region,
     table_boxes,
 )
 from quadmanip.sim.world.objects import load_catalogue
@@ -156,4 +160,27 @@ def test_open_drawer(which):
     opened = h.data.qpos[world.model.joint(world.drawer_joints[which]).qposadr[0]]
     assert opened >= 0.15
     assert math.isfinite(opened)
+    _assert_honest(h)
+
+
+def test_place_tool_into_open_drawer():
+    """Paper order (Section 7.2): open the drawer first, then put a tool in it."""
+    world = drawer_place_world("padlock")
+    h = SimHarness(world=world)
+    h.settle(0.3)
+    handle = h.world_to_base(h.data.body(world.drawer_handles["top"]).xpos)
+    plan = plan_drawer(GEOM, CFG, handle, np.array([-1.0, 0.0, 0.0]), 0.15)
+    assert h.run(DrawerPrimitive(GEOM, CFG, plan), KP, KD, 40.0).status is Status.SUCCEEDED
+    carry = resolve_postures(GEOM, CFG)["carry"]
+    assert h.run(PostureMove(GEOM, CFG, carry), KP, KD, 20.0).status is Status.SUCCEEDED
+    g = _grasp(h, "padlock", 0.20, "vertical")
+    assert g.status is Status.SUCCEEDED, g.reason
+    hang = float(h.tcp_world()[2] - (h.object_pos("padlock")[2] - 0.012))
+    mouth, front_top = drawer_mouth(h, world, "top")
+    target = h.world_to_base(np.array([mouth[0], mouth[1], front_top]))
+    pplan = plan_place(GEOM, CFG, target, h.observation().q_arm, hang, g.body)
+    p = h.run(PlacePrimitive(GEOM, CFG, pplan, monitor=g.monitor, body=g.body), KP, KD, 40.0)
+    assert p.status is Status.SUCCEEDED, p.reason
+    h.settle(1.0)
+    assert in_region(h, world, "drawer_top", "padlock")
     _assert_honest(h)
