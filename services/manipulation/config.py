@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from quadmanip.common.config import load_config
 from quadmanip.services.manipulation.gripper import GripperConfig
@@ -94,6 +94,17 @@ class ManipulationConfig:
 def load_manipulation_config(name_or_path: str = "manipulation") -> ManipulationConfig:
     """Loads and validates ``configs/manipulation.toml`` (unknown keys are errors)."""
     cfg = load_config(ManipulationConfig, name_or_path)
+    # The fingers' travel is the description's (joint ranges of both fingers), never a
+    # copied constant: open_gap = 0 (the default) means "fully open".
+    from quadmanip.common.robot_description import robot_info
+
+    max_gap = robot_info().gripper_max_gap
+    if cfg.gripper.open_gap <= 0.0:
+        cfg = replace(cfg, gripper=replace(cfg.gripper, open_gap=max_gap))
+    elif cfg.gripper.open_gap > max_gap + 1e-9:
+        raise ValueError(
+            f"gripper.open_gap {cfg.gripper.open_gap} exceeds the description's {max_gap:.3f} m"
+        )
     for name, spec in cfg.postures.items():
         if (len(spec.q) == 4) == (len(spec.tcp) == 4) or (spec.q and spec.tcp):
             raise ValueError(f"posture {name!r}: give exactly one of q (4) or tcp (4)")

@@ -28,7 +28,8 @@ __all__ = ["GripState", "GripperConfig", "GraspMonitor"]
 class GripperConfig:
     """Gripper thresholds (section ``[gripper]`` of configs/manipulation.toml)."""
 
-    open_gap: float = 0.08
+    # 0 = the description's maximum finger gap (filled in by load_manipulation_config).
+    open_gap: float = 0.0
     close_gap: float = 0.0
     max_force: float = 25.0
     empty_gap: float = 0.0015
