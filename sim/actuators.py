@@ -14,8 +14,9 @@ the robot (ARCHITECTURE.md, "Honest simulation").
   owner publishes at. After the last knot the last point is held. A new trajectory
   replaces the old one from its first time stamp on (the old one keeps running until
   then). Before any trajectory the arm servos hold the pose they started in.
-* Gripper: position control on the finger gap, with the finger force clamped to the
-  commanded ``max_force`` (a real parallel gripper's current limit).
+* Gripper: stiff position control on the finger gap, with the finger force clamped to
+  the commanded ``max_force`` (a real parallel gripper's current limit): fingers blocked
+  by an object squeeze it with ``max_force`` per finger.
 * Every torque is clamped to the actuator's limit from the model (``ctrlrange`` times
   gear) and to a linear torque-speed envelope: above a corner speed the torque available
   in the direction of motion falls linearly to zero at the joint's no-load speed, while
@@ -58,8 +59,12 @@ class ActuatorConfig:
     arm_hold_kp: float = 60.0
     arm_hold_kd: float = 2.0
     # Gripper position loop on the finger gap (N/m, N s/m) and default force limit (N).
-    gripper_kp: float = 2000.0
-    gripper_kd: float = 20.0
+    # Stiff, like a real parallel gripper's drive: blocked by an object >= 1.5 mm thick,
+    # the fingers squeeze at the commanded max_force (the current limit), not at kp times
+    # a few mm. 20000 N/m with 40 N s/m is well damped at the 1 ms step for the
+    # description's fingers (0.06 kg each with armature); 50000 N/m limit-cycles.
+    gripper_kp: float = 20000.0
+    gripper_kd: float = 40.0
     gripper_default_force: float = 20.0
 
 

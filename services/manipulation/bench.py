@@ -60,13 +60,14 @@ def bench_ik(n: int, seed: int = 0) -> dict[str, Any]:
 
 
 def _grasp_trial(name: str, where: str, rng: np.random.Generator) -> dict[str, Any]:
-    from quadmanip.services.manipulation.grasp import GraspPrimitive, GraspRejected, plan_grasp
+    from quadmanip.services.manipulation.grasp import GraspPrimitive, GraspRejected
     from quadmanip.services.manipulation.primitive import Status
     from quadmanip.services.manipulation.sim_harness import (
         TABLE_HEIGHT,
         PlacedObject,
         SimHarness,
         grasp_from_ground_truth,
+        plan_grasp_from_ground_truth,
         table_boxes,
     )
 
@@ -97,10 +98,22 @@ def _grasp_trial(name: str, where: str, rng: np.random.Generator) -> dict[str, A
         z0 = float(h.object_pos(name)[2])
         gs = grasp_from_ground_truth(h, name, surface, approach)
     try:
-        plan = plan_grasp(geom, cfg, gs.position_base, gs.approach, gs.yaw, gs.width)
+        gs, plan = plan_grasp_from_ground_truth(h, geom, cfg, name, surface, approach)
     except GraspRejected as exc:
-        out.update(success=False, reason=str(exc), time_s=None)
-        return out
+        if "self_collision" not in exc.detail and "too_close" not in exc.detail:
+            out.update(success=False, reason=str(exc), time_s=None)
+            return out
+        # the grasp point is too close to the trunk (a bowl's near rim): the robot stands
+        # 8 cm further back, as navigation would, i.e. the scene moves by +x
+        pos = (pos[0] + 0.08, pos[1], pos[2])
+        h = SimHarness([PlacedObject(name, pos, yaw=float(yaw))], boxes)
+        h.settle(0.3)
+        z0 = float(h.object_pos(name)[2])
+        try:
+            gs, plan = plan_grasp_from_ground_truth(h, geom, cfg, name, surface, approach)
+        except GraspRejected as exc2:
+            out.update(success=False, reason=str(exc2), time_s=None)
+            return out
     prim = h.run(GraspPrimitive(geom, cfg, plan), cfg.motion.kp, cfg.motion.kd, timeout=30.0)
     low = math.inf
     if prim.status is Status.SUCCEEDED:
@@ -116,7 +129,7 @@ def _grasp_trial(name: str, where: str, rng: np.random.Generator) -> dict[str, A
 
 
 def _place_trial(name: str) -> dict[str, Any]:
-    from quadmanip.services.manipulation.grasp import GraspPrimitive, GraspRejected, plan_grasp
+    from quadmanip.services.manipulation.grasp import GraspPrimitive, GraspRejected
     from quadmanip.services.manipulation.place import PlacePrimitive, plan_place
     from quadmanip.services.manipulation.primitive import Status
     from quadmanip.services.manipulation.sim_harness import (
@@ -125,7 +138,7 @@ def _place_trial(name: str) -> dict[str, Any]:
         SimHarness,
         container_boxes,
         container_inner,
-        grasp_from_ground_truth,
+        plan_grasp_from_ground_truth,
         table_boxes,
     )
     from quadmanip.sim.world.house import load_house
@@ -153,8 +166,7 @@ def _place_trial(name: str) -> dict[str, Any]:
     t0 = float(h.data.time)
     approach = "horizontal" if tall else "vertical"
     try:
-        gs = grasp_from_ground_truth(h, name, surface, approach)
-        plan = plan_grasp(geom, cfg, gs.position_base, gs.approach, gs.yaw, gs.width)
+        gs, plan = plan_grasp_from_ground_truth(h, geom, cfg, name, surface, approach)
     except GraspRejected as exc:
         out.update(success=False, reason=f"grasp: {exc}")
         return out
@@ -197,7 +209,7 @@ def _place_trial(name: str) -> dict[str, Any]:
 def _drawer_place_trial(name: str, out: dict[str, Any]) -> dict[str, Any]:
     """Tools go into the top drawer: open it, carry posture, grasp from a stool, place."""
     from quadmanip.services.manipulation.drawer import DrawerPrimitive, plan_drawer
-    from quadmanip.services.manipulation.grasp import GraspPrimitive, GraspRejected, plan_grasp
+    from quadmanip.services.manipulation.grasp import GraspPrimitive, GraspRejected
     from quadmanip.services.manipulation.place import PlacePrimitive, plan_place
     from quadmanip.services.manipulation.postures import resolve_postures
     from quadmanip.services.manipulation.primitive import PostureMove, Status
@@ -207,6 +219,7 @@ def _drawer_place_trial(name: str, out: dict[str, Any]) -> dict[str, Any]:
         drawer_place_world,
         grasp_from_ground_truth,
         in_region,
+        plan_grasp_from_ground_truth,
     )
     from quadmanip.sim.world.objects import load_catalogue
 
@@ -240,8 +253,7 @@ def _drawer_place_trial(name: str, out: dict[str, Any]) -> dict[str, Any]:
         return out
     h.run(PostureMove(geom, cfg, resolve_postures(geom, cfg)["carry"]), kp, kd, 20.0)
     try:
-        gs = grasp_from_ground_truth(h, name, stool, "vertical")
-        plan = plan_grasp(geom, cfg, gs.position_base, gs.approach, gs.yaw, gs.width)
+        gs, plan = plan_grasp_from_ground_truth(h, geom, cfg, name, stool, "vertical")
     except GraspRejected as exc:
         out.update(success=False, reason=f"grasp: {exc}")
         return out

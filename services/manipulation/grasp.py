@@ -125,8 +125,16 @@ def plan_grasp(
     yaw: float,
     width: float,
     body: BodyPoseRequest | None = None,
+    tilt: float = 0.0,
 ) -> GraspPlan:
-    """Computes and checks Algorithm 6's poses; raises :class:`GraspRejected` with a reason."""
+    """Computes and checks Algorithm 6's poses; raises :class:`GraspRejected` with a reason.
+
+    ``tilt`` (vertical grasps only, rad) leans the tool forward in the arm plane, pitch
+    ``pi/2 - tilt``, and the approach runs along the tool axis. It lets the pads lie flat
+    on a flared vessel wall (a bowl's wall leans ~37 deg): pinched with vertical pads, the
+    wall touches them only at two edges at different heights and the vessel pivots out.
+    Not in the paper (Algorithm 6 only knows vertical and horizontal).
+    """
     g = cfg.grasp
     body = body or BodyPoseRequest()
     p = np.asarray(position_base, dtype=float)
@@ -141,6 +149,8 @@ def plan_grasp(
         )
     if approach not in ("vertical", "horizontal"):
         raise GraspRejected("invalid_goal", f"approach {approach!r} (auto is resolved upstream)")
+    if not math.isfinite(tilt) or abs(tilt) > 0.8 or (tilt and approach != "vertical"):
+        raise GraspRejected("invalid_goal", f"tilt {tilt} (|tilt| <= 0.8, vertical grasps only)")
     base_target, lateral = target_from_base_pose(geom, p, 0.0, 0.0)
     y_total = body.y_offset + lateral
     if abs(y_total) > g.max_lateral_shift + 1e-9:
@@ -155,11 +165,14 @@ def plan_grasp(
     if approach == "vertical":
         roll = _wrist_roll(geom, -yaw)
         last = ""
+        pitch = math.pi / 2 - tilt
+        # ready: grasp_ready_z back along the tool axis (straight above when not tilted)
+        back_x, back_z = -g.grasp_ready_z * math.cos(pitch), g.grasp_ready_z * math.sin(pitch)
         for crouch in np.arange(0.0, g.max_crouch + 1e-9, 0.005):
             zg = z + crouch
-            grasp = ArmTarget(x, zg, math.pi / 2, roll)
-            ready = ArmTarget(x, zg + g.grasp_ready_z, math.pi / 2, roll)
-            lift = ArmTarget(x, zg + g.lift_height, math.pi / 2, roll)
+            grasp = ArmTarget(x, zg, pitch, roll)
+            ready = ArmTarget(x + back_x, zg + back_z, pitch, roll)
+            lift = ArmTarget(x, zg + g.lift_height, pitch, roll)
             targets = [*_line(ready, grasp, 8), *_line(grasp, lift, 8)]
             last = _reachable(geom, targets, ref)
             if not last:

@@ -39,6 +39,7 @@ from quadmanip.sim.actuators import ActuatorConfig, ActuatorLayer
 from quadmanip.sim.world.objects import add_object, load_catalogue
 
 __all__ = [
+    "plan_grasp_from_ground_truth",
     "Box",
     "GraspSpec",
     "PlacedObject",
@@ -368,6 +369,7 @@ class GraspSpec:
     approach: str
     yaw: float
     width: float
+    tilt: float = 0.0  # tool lean for a flared vessel wall (plan_grasp's ``tilt``)
 
 
 def _part_extent(g: object) -> tuple[np.ndarray, np.ndarray]:
@@ -393,7 +395,12 @@ GRASP_HINTS: dict[str, tuple[tuple[float, float, float], tuple[float, float, flo
 
 
 def grasp_from_ground_truth(
-    h: SimHarness, name: str, surface_z: float, approach: str = "vertical", max_width: float = 0.085
+    h: SimHarness,
+    name: str,
+    surface_z: float,
+    approach: str = "vertical",
+    max_width: float = 0.085,
+    far_side: bool = False,
 ) -> GraspSpec:
     """Grasp pose for object ``name`` from its true pose (TEST HARNESS ONLY).
 
@@ -420,6 +427,27 @@ def grasp_from_ground_truth(
         axis = p + rot @ np.array([-0.5 * reach, 0.0, 0.0])
         r = 0.5 * spec.size[1] - 0.5 * v.wall
         base_pos, _ = h.base_pose()
+        lean = math.atan2(0.5 * (spec.size[1] - v.bottom_diameter), spec.size[2])
+        if not v.handle and lean > 0.35:
+            # strongly flared, round (bowl): pinch the wall facing the robot (or the far
+            # one, ``far_side``, when the near one is too close to the trunk) with the tool
+            # leaned along it, fingers across it, pads 1.5 cm down the wall
+            d_world = axis - base_pos
+            d_world[2] = 0.0
+            d_world = (1.0 if far_side else -1.0) * d_world / np.linalg.norm(d_world)
+            depth = 0.015
+            c = math.cos(lean)
+            r_pt = 0.5 * spec.size[1] - 0.5 * v.wall / c - depth * math.tan(lean)
+            pt = axis + r_pt * d_world
+            pt[2] = top - depth
+            ang = math.atan2(d_world[1], d_world[0])
+            return GraspSpec(
+                h.world_to_base(pt),
+                "vertical",
+                ang - math.pi / 2 - base_yaw,
+                v.wall / c + 0.01,
+                tilt=-lean if far_side else lean,
+            )
         best = None
         for th in (0.5 * math.pi, math.pi, 1.5 * math.pi) + ((0.0,) if not v.handle else ()):
             d_world = rot @ np.array([math.cos(th), math.sin(th), 0.0])
@@ -462,6 +490,39 @@ def grasp_from_ground_truth(
     pt = p.copy()
     pt[2] = surface_z + min(0.05, max(0.02, 0.5 * spec.size[2]))
     return GraspSpec(h.world_to_base(pt), "horizontal", 0.0, float(2 * ext[1]))
+
+
+def plan_grasp_from_ground_truth(
+    h: SimHarness,
+    geom: object,
+    cfg: object,
+    name: str,
+    surface_z: float,
+    approach: str = "vertical",
+) -> tuple[GraspSpec, object]:
+    """Ground-truth grasp pose and its checked plan (TEST HARNESS ONLY).
+
+    A flared vessel is pinched at the wall facing the robot; if the planner rejects that
+    one (too close to the trunk on the floor) the far wall is tried, as a grasp planner
+    would try its next candidate. Raises the near wall's ``GraspRejected`` otherwise.
+    """
+    from quadmanip.services.manipulation.grasp import GraspRejected, plan_grasp
+
+    gs = grasp_from_ground_truth(h, name, surface_z, approach)
+
+    def plan(g: GraspSpec) -> object:
+        return plan_grasp(geom, cfg, g.position_base, g.approach, g.yaw, g.width, tilt=g.tilt)  # type: ignore[arg-type]
+
+    try:
+        return gs, plan(gs)
+    except GraspRejected as near:
+        if not gs.tilt:
+            raise
+        far = grasp_from_ground_truth(h, name, surface_z, approach, far_side=True)
+        try:
+            return far, plan(far)
+        except GraspRejected:
+            raise near from None
 
 
 # --------------------------------------------------------------------------- test scenes

@@ -1,12 +1,13 @@
 """Grasp detection on synthetic finger gap / effort signals shaped like a force-limited loop."""
 
+import mujoco
 import numpy as np
 import pytest
 from quadmanip.services.manipulation.gripper import GraspMonitor, GripperConfig, GripState
 
 pytestmark = pytest.mark.unit
 
-CFG = GripperConfig()
+CFG = GripperConfig(open_gap=0.12)
 DT = 0.002
 
 
@@ -89,3 +90,56 @@ def test_open_resets():
     assert mon.state is GripState.OPEN
     gap, force = mon.command_close(0.1, max_force=10.0)
     assert gap == CFG.close_gap and force == 10.0
+
+
+def _squeeze_thin_plate(thickness: float, max_force: float) -> tuple[float, float, float]:
+    """The description's gripper (sim actuator layer, sim.toml gains) closing on a rigid
+    plate fixed between the pads, gravity off: returns (gap, effort, contact normal force
+    summed over both pads) after 1.5 s."""
+    from quadmanip.common import robot_description as rd
+    from quadmanip.common.config import load_config
+    from quadmanip.sim.actuators import ActuatorConfig, ActuatorLayer
+    from quadmanip.sim.engine import SimConfig
+
+    spec = rd.robot_spec()
+    spec.option.gravity = [0.0, 0.0, 0.0]
+    m0 = spec.compile()
+    d0 = mujoco.MjData(m0)
+    mujoco.mj_resetDataKeyframe(m0, d0, m0.key("home").id)
+    mujoco.mj_forward(m0, d0)
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, d0.site("gripper_tcp").xmat)
+    plate = spec.worldbody.add_body(name="plate", pos=d0.site("gripper_tcp").xpos.copy(), quat=quat)
+    plate.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.01, thickness / 2, 0.01])
+    m = spec.compile()
+    d = mujoco.MjData(m)
+    mujoco.mj_resetDataKeyframe(m, d, m.key("home").id)
+    sim_cfg = load_config(SimConfig, "sim").actuators
+    act = ActuatorLayer(m, sim_cfg, rd.LEG_JOINTS, rd.ARM_JOINTS, rd.GRIPPER_JOINTS)
+    assert isinstance(sim_cfg, ActuatorConfig)
+    d.qpos[act.gripper.qpos] = 0.03
+    mujoco.mj_forward(m, d)
+    assert act.set_gripper_command(0.0, 0.0, max_force)
+    pid = m.body("plate").id
+    for _ in range(1500):
+        act.apply(d)
+        mujoco.mj_step(m, d)
+    normal = 0.0
+    f6 = np.zeros(6)
+    for k in range(d.ncon):
+        c = d.contact[k]
+        if pid in (m.geom_bodyid[c.geom1], m.geom_bodyid[c.geom2]):
+            mujoco.mj_contactForce(m, d, k, f6)
+            normal += f6[0]
+    return act.gripper_gap(d), float(act.tau[act.gripper.act[0]]), normal
+
+
+@pytest.mark.parametrize("thickness", [0.004, 0.02])
+def test_blocked_fingers_squeeze_at_the_force_limit(thickness):
+    # A real force-limited parallel gripper closing on an object stalls at the object's
+    # width and presses each pad on it with the commanded force (its current limit), even
+    # on a bowl's 4 mm rim: the gap loop must saturate, not stop at kp x (a few mm).
+    gap, effort, normal = _squeeze_thin_plate(thickness, 30.0)
+    assert gap == pytest.approx(thickness, abs=3e-4)  # stalled on the plate (pads ~0.1 mm in)
+    assert effort == pytest.approx(-30.0, abs=0.5)  # closing force saturated
+    assert normal == pytest.approx(2 * 30.0, rel=0.03)  # both pads press with 30 N each
