@@ -267,7 +267,9 @@ def test_gripper_force_clamped_to_max_force(layer):
     d.qpos[act.gripper.qpos] = 0.0201
     assert act.set_gripper_command(d.time, 0.04, 30.0)
     act.apply(d)
-    np.testing.assert_allclose(d.ctrl[act.gripper.act], act.config.gripper_kp * (0.04 - 0.0402), atol=1e-9)
+    np.testing.assert_allclose(
+        d.ctrl[act.gripper.act], act.config.gripper_kp * (0.04 - 0.0402), atol=1e-9
+    )
     # In physics the fingers settle at the commanded gap, symmetrically.
     assert act.set_gripper_command(d.time, 0.06, 30.0)
     for _ in range(1500):
