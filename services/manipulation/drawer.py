@@ -218,7 +218,9 @@ class DrawerPrimitive(Primitive):
         if self.monitor.state is not GripState.HOLDING:
             raise PrimitiveFailed(f"handle_lost during the pull ({self.monitor.state.value})")
         self.stage("drawer: release", 0.85)
-        yield from self.open_gripper()
+        # release just wide enough to clear the bar: fully open (0.12 m) fingers reach the
+        # drawer front / cabinet frame and push the drawer shut by ~4 cm when backing off
+        yield from self.open_gripper(HANDLE_WIDTH + 2 * self.cfg.grasp.open_margin)
         # back off along the pull, then rise above the handle before the body returns
         # forward (open fingers would otherwise push the drawer shut again)
         # (the wrist may have to pitch to back off near its range limit)
