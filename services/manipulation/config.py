@@ -90,21 +90,25 @@ class ManipulationConfig:
     postures: dict[str, PostureSpec] = field(default_factory=dict)
     heartbeat_period: float = 0.5
 
+    def __post_init__(self) -> None:
+        # The fingers' travel is the description's (joint ranges of both fingers), never a
+        # copied constant: gripper.open_gap = 0 (the default) means "fully open". Done
+        # here so every loader (the service runtime's too) gets it.
+        from quadmanip.common.robot_description import robot_info
+
+        max_gap = robot_info().gripper_max_gap
+        if self.gripper.open_gap <= 0.0:
+            object.__setattr__(self, "gripper", replace(self.gripper, open_gap=max_gap))
+        elif self.gripper.open_gap > max_gap + 1e-9:
+            raise ValueError(
+                f"gripper.open_gap {self.gripper.open_gap} exceeds the description's "
+                f"{max_gap:.3f} m"
+            )
+
 
 def load_manipulation_config(name_or_path: str = "manipulation") -> ManipulationConfig:
     """Loads and validates ``configs/manipulation.toml`` (unknown keys are errors)."""
     cfg = load_config(ManipulationConfig, name_or_path)
-    # The fingers' travel is the description's (joint ranges of both fingers), never a
-    # copied constant: open_gap = 0 (the default) means "fully open".
-    from quadmanip.common.robot_description import robot_info
-
-    max_gap = robot_info().gripper_max_gap
-    if cfg.gripper.open_gap <= 0.0:
-        cfg = replace(cfg, gripper=replace(cfg.gripper, open_gap=max_gap))
-    elif cfg.gripper.open_gap > max_gap + 1e-9:
-        raise ValueError(
-            f"gripper.open_gap {cfg.gripper.open_gap} exceeds the description's {max_gap:.3f} m"
-        )
     for name, spec in cfg.postures.items():
         if (len(spec.q) == 4) == (len(spec.tcp) == 4) or (spec.q and spec.tcp):
             raise ValueError(f"posture {name!r}: give exactly one of q (4) or tcp (4)")

@@ -40,10 +40,14 @@ HANDLE_WIDTH = 0.02  # bar thickness the fingers open around (+ margin), m
 MIN_PULL_X_LOW = 0.25
 MIN_PULL_X_HIGH = 0.32
 LOW_Z = -0.12
-# The bar is held in the front half of the pads (tool centre this far behind it), so backing
-# off RETREAT releases it without the palm reaching the trunk.
-GRIP_BEHIND = 0.012
+# Tool centre this far behind the bar at the grip. 0: the bar sits mid-pad, +-1.3 cm of
+# tolerance either way. Under real locomotion the trunk backs off ~1 cm while the arm
+# reaches forward (the balance controller keeps the whole-robot COM over the feet), which
+# pushed a bar held in the pads' front half (1.2 cm) off the fingertips.
+GRIP_BEHIND = 0.0
 RETREAT = 0.045
+# Re-aim at the handle when the trunk drifted more than this (m).
+DRIFT_TOL = 0.004
 
 
 def _min_pull_x(z: float) -> float:
@@ -206,6 +210,18 @@ class DrawerPrimitive(Primitive):
         yield from self.move_joints(np.asarray(plan.q_ready))
         self.stage("drawer: reach the handle", 0.35)
         yield from self._line_to(plan.grip)
+        # the handle is fixed in the world: follow the trunk's unplanned drift (odometry)
+        for _ in range(3):
+            yield from self.wait(0.2)
+            d = self.body_drift()
+            obs = self._last_obs
+            assert obs is not None
+            here = fk_tcp(self.geom, obs.q_arm)
+            want = ArmTarget(plan.grip.x - d[0], plan.grip.z - d[2], here.pitch, here.roll)
+            if math.hypot(want.x - here.x, want.z - here.z) < DRIFT_TOL:
+                break
+            self.stage(f"drawer: follow body drift {d[0]:+.3f} m", 0.4)
+            yield from self._line_to(want)
         self.stage("drawer: grip", 0.45)
         yield from self.close_gripper()
         if self.monitor.state is not GripState.HOLDING:

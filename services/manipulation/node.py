@@ -18,6 +18,7 @@ near the floor (the standing height comes from the description), else taken as 5
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 
@@ -50,6 +51,7 @@ __all__ = ["ManipulationNode", "main"]
 
 DEFAULT_HANG = 0.05
 ARM = slice(12, 16)
+ODOM_MAX_AGE = 0.5  # s: older odometry is not used for the body-drift correction
 
 
 class ManipulationNode(Service):
@@ -57,7 +59,10 @@ class ManipulationNode(Service):
 
     name = "manipulation"
     config_type = ManipulationConfig
-    inputs = (Input("sim/lowstate", m.LowState, latest_only=True, doc="joint encoders, gripper"),)
+    inputs = (
+        Input("sim/lowstate", m.LowState, latest_only=True, doc="joint encoders, gripper"),
+        Input("locomotion/odometry", m.Odometry, latest_only=True, doc="body drift while working"),
+    )
     outputs = (
         Output("sim/arm_trajectory", m.ArmTrajectory, doc="time-stamped arm trajectory"),
         Output("sim/gripper_command", m.GripperCommand, doc="finger gap + force limit"),
@@ -80,6 +85,7 @@ class ManipulationNode(Service):
         self.pub_grip = self.publisher("sim/gripper_command")
         self.pub_body = self.publisher("locomotion/body_pose")
         self.state_cache = self.latest("sim/lowstate")
+        self.odom_cache = self.latest("locomotion/odometry")
         self._lock = threading.Lock()
         self.active: Primitive | None = None
         self._cancel_req = False
@@ -98,12 +104,20 @@ class ManipulationNode(Service):
         if st is None:
             return None
         j = st.joints
+        base = None
+        od = self.odom_cache.get()
+        if od is not None and abs(float(od.stamp) - float(st.stamp)) < ODOM_MAX_AGE:
+            w, x, y, z = (float(v) for v in od.orientation)
+            yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+            p = od.position
+            base = (float(p[0]), float(p[1]), float(p[2]), yaw)
         return Observation(
             t=float(st.stamp),
             q_arm=np.asarray(j.q[ARM], dtype=float),
             dq_arm=np.asarray(j.dq[ARM], dtype=float),
             gripper_gap=float(j.gripper_gap),
             gripper_effort=float(j.gripper_effort),
+            base=base,
         )
 
     def _make(self, goal: m.Message, obs: Observation) -> Primitive:

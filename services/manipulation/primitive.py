@@ -9,6 +9,7 @@ Nothing here imports a transport, so every primitive is testable in-process.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Generator
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -48,6 +49,9 @@ class Observation:
     dq_arm: np.ndarray
     gripper_gap: float
     gripper_effort: float
+    # Base pose (x, y, z, yaw) from locomotion's odometry, None where there is none (the
+    # in-process harness, whose legs are held rigidly).
+    base: tuple[float, float, float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -130,6 +134,8 @@ class Primitive:
         self.t_end: float | None = None
         self._gen: Script | None = None
         self._last_obs: Observation | None = None
+        self._base0: tuple[float, float, float, float] | None = None
+        self._body0 = self.body
 
     # -------------------------------------------------------------------- driving
     def script(self) -> Script:  # pragma: no cover - abstract
@@ -142,6 +148,9 @@ class Primitive:
         if self.status is not Status.RUNNING:
             return []
         self._last_obs = obs
+        if self._base0 is None and obs.base is not None:
+            self._base0 = obs.base
+            self._body0 = self.body
         self.monitor.update(obs.t, obs.gripper_gap, obs.gripper_effort)
         try:
             if self._gen is None:
@@ -211,6 +220,31 @@ class Primitive:
                         f"arm_blocked: {err:.3f} rad from the trajectory end after timeout"
                     )
             obs = yield []
+
+    def body_drift(self) -> np.ndarray:
+        """Unplanned body motion since the primitive started: ``(dx, dy, dz)`` in the
+        start body frame, odometry minus the body-pose offsets this primitive requested.
+
+        Under real locomotion the trunk does not stay put while the arm works: the balance
+        controller keeps the whole-robot COM over the feet, so reaching 8 cm forward backs
+        the trunk off 1-2 cm. Targets fixed in the world (a drawer handle) are corrected by
+        this. Zero without odometry.
+        """
+        obs = self._last_obs
+        if obs is None or obs.base is None or self._base0 is None:
+            return np.zeros(3)
+        x0, y0, z0, yaw0 = self._base0
+        x, y, z, _ = obs.base
+        c, s = math.cos(yaw0), math.sin(yaw0)
+        dx, dy = x - x0, y - y0
+        b, b0 = self.body, self._body0
+        return np.array(
+            [
+                c * dx + s * dy - (b.x_offset - b0.x_offset),
+                -s * dx + c * dy - (b.y_offset - b0.y_offset),
+                z - z0 - (b.z_offset - b0.z_offset),
+            ]
+        )
 
     def move_joints(self, q_goal: np.ndarray) -> Script:
         """Joint-space move from the measured joints to ``q_goal`` (limits enforced)."""

@@ -39,6 +39,7 @@ from quadmanip.sim.actuators import ActuatorConfig, ActuatorLayer
 from quadmanip.sim.world.objects import add_object, load_catalogue
 
 __all__ = [
+    "grasp_from_poses",
     "plan_grasp_from_ground_truth",
     "Box",
     "GraspSpec",
@@ -402,7 +403,37 @@ def grasp_from_ground_truth(
     max_width: float = 0.085,
     far_side: bool = False,
 ) -> GraspSpec:
-    """Grasp pose for object ``name`` from its true pose (TEST HARNESS ONLY).
+    """Grasp pose for object ``name`` from its true pose in the harness (TEST HARNESS ONLY);
+    see :func:`grasp_from_poses`."""
+    base_pos, base_rot = h.base_pose()
+    return grasp_from_poses(
+        h.catalogue,
+        name,
+        h.object_pos(name),
+        h.data.body(f"obj/{name}").xmat.reshape(3, 3).copy(),
+        base_pos,
+        base_rot,
+        surface_z,
+        approach,
+        max_width,
+        far_side,
+    )
+
+
+def grasp_from_poses(
+    catalogue: object,
+    name: str,
+    p_world: np.ndarray,
+    rot_world: np.ndarray,
+    base_pos: np.ndarray,
+    base_rot: np.ndarray,
+    surface_z: float,
+    approach: str = "vertical",
+    max_width: float = 0.085,
+    far_side: bool = False,
+) -> GraspSpec:
+    """Grasp pose for object ``name`` from its true world pose and the base's (TEST HARNESS ONLY:
+    stands in for perception; also used by the full-stack tests on ground-truth messages).
 
     Vertical: above the largest part's centre, fingers across its narrower horizontal side,
     tool centre 3 cm below the object's top (the palm is 5 cm above the tool centre) but at
@@ -413,12 +444,17 @@ def grasp_from_ground_truth(
     """
     from quadmanip.sim.world.objects import object_parts
 
-    spec = h.catalogue.objects[name]
-    p = h.object_pos(name)
-    rot = h.data.body(f"obj/{name}").xmat.reshape(3, 3).copy()
+    spec = catalogue.objects[name]  # type: ignore[attr-defined]
+    p = np.asarray(p_world, dtype=float).copy()
+    rot = np.asarray(rot_world, dtype=float).reshape(3, 3)
+    base_pos = np.asarray(base_pos, dtype=float)
+    base_rot = np.asarray(base_rot, dtype=float).reshape(3, 3)
     obj_yaw = math.atan2(rot[1, 0], rot[0, 0])
-    _, base_rot = h.base_pose()
     base_yaw = math.atan2(base_rot[1, 0], base_rot[0, 0])
+
+    def world_to_base(q: np.ndarray) -> np.ndarray:
+        return base_rot.T @ (np.asarray(q, dtype=float) - base_pos)
+
     top = surface_z + spec.size[2]
     if spec.shape == "vessel" and approach == "vertical":
         v = spec.vessel
@@ -426,7 +462,6 @@ def grasp_from_ground_truth(
         reach = spec.size[0] - spec.size[1]
         axis = p + rot @ np.array([-0.5 * reach, 0.0, 0.0])
         r = 0.5 * spec.size[1] - 0.5 * v.wall
-        base_pos, _ = h.base_pose()
         lean = math.atan2(0.5 * (spec.size[1] - v.bottom_diameter), spec.size[2])
         if not v.handle and lean > 0.35:
             # strongly flared, round (bowl): pinch the wall facing the robot (or the far
@@ -442,7 +477,7 @@ def grasp_from_ground_truth(
             pt[2] = top - depth
             ang = math.atan2(d_world[1], d_world[0])
             return GraspSpec(
-                h.world_to_base(pt),
+                world_to_base(pt),
                 "vertical",
                 ang - math.pi / 2 - base_yaw,
                 v.wall / c + 0.01,
@@ -459,9 +494,7 @@ def grasp_from_ground_truth(
         _, pt, ang = best
         pt = pt.copy()
         pt[2] = top - 0.012
-        return GraspSpec(
-            h.world_to_base(pt), "vertical", ang - math.pi / 2 - base_yaw, v.wall + 0.01
-        )
+        return GraspSpec(world_to_base(pt), "vertical", ang - math.pi / 2 - base_yaw, v.wall + 0.01)
     parts = object_parts(spec)
     if name in GRASP_HINTS:
         centre, half = GRASP_HINTS[name]
@@ -482,14 +515,14 @@ def grasp_from_ground_truth(
         else:
             yaw, width = obj_yaw + math.pi / 2, 2 * half[0]
         pt[2] = max(surface_z + 0.021, top - 0.03)
-        return GraspSpec(h.world_to_base(pt), "vertical", yaw - base_yaw, float(width))
+        return GraspSpec(world_to_base(pt), "vertical", yaw - base_yaw, float(width))
     # horizontal: extent across the body's y axis (a round object's diameter)
     ext = np.abs(rot) @ (0.5 * np.asarray(spec.size))
     if spec.shape in ("cylinder", "sphere"):
         ext[1] = 0.5 * spec.size[0]
     pt = p.copy()
     pt[2] = surface_z + min(0.05, max(0.02, 0.5 * spec.size[2]))
-    return GraspSpec(h.world_to_base(pt), "horizontal", 0.0, float(2 * ext[1]))
+    return GraspSpec(world_to_base(pt), "horizontal", 0.0, float(2 * ext[1]))
 
 
 def plan_grasp_from_ground_truth(
