@@ -58,7 +58,6 @@ class Stack:
     """The test's view of the running stack: ground truth, clock, actions, walking."""
 
     def __init__(self, bus, procs) -> None:
-        self._bus = bus
         self.procs = procs
         self.objs = bus.latest("sim/gt/objects", m.GroundTruthPoses)
         self.base = bus.latest("sim/gt/base", m.GroundTruthPoses)
@@ -145,35 +144,7 @@ class Stack:
     def act(self, action: str, goal: m.Message, timeout: float = 300.0) -> m.ActionResult:
         h = self.actions[action].send_goal(goal, timeout=5.0)
         assert h.accepted, f"{action} rejected: {h.reason}"
-        import os
-
-        if os.environ.get("QM_DEBUG_STACK"):
-            last = -1.0
-            while True:
-                res = h.result(timeout=0.1)
-                if res is not None:
-                    break
-                if self.now() - last > 0.25:
-                    last = self.now()
-                    bp, br, yaw = self.base_frame()
-                    fb = h.feedback[-1].text if h.feedback else ""
-                    from quadmanip.services.manipulation.arm_kinematics import ArmGeometry, fk_tcp
-
-                    if not hasattr(self, "_geom"):
-                        self._geom = ArmGeometry.from_description()
-                        self._ls = self._bus.latest("sim/lowstate", m.LowState)
-                    ls = self._ls.get()
-                    if ls is not None:
-                        tg = fk_tcp(self._geom, np.asarray(ls.joints.q[12:16]))
-                        tw = bp + br @ (
-                            np.asarray(self._geom.arm_base_pos) + np.array([tg.x, 0, tg.z])
-                        )
-                        print(
-                            f"     tcp_world={np.round(tw, 3)} gap={ls.joints.gripper_gap:.3f} eff={ls.joints.gripper_effort:.1f}"
-                        )
-                    print(
-                        f"  t={last:.2f} base={np.round(bp, 3)} yaw={yaw:.3f} pitch={-math.asin(br[2, 0]):.3f} roll={math.atan2(br[2, 1], br[2, 2]):.3f} {fb}"
-                    )
+        res = h.result(timeout=timeout)
         assert res is not None, f"{action}: no result\n{self.logs()}"
         assert res.status == "succeeded", f"{action}: {res.status} {res.reason}\n{self.logs()}"
         return res
@@ -225,15 +196,6 @@ def test_drawer_table_grasp_place_floor_grasp_over_the_stack(zenoh_router, spawn
         time.sleep(0.1)
     s.wait_sim(s.now() + 1.0)
     s.mark("stack up")
-    import os
-
-    if os.environ.get("QM_DEBUG_GRIP"):
-        ls = bus.latest("sim/lowstate", m.LowState)
-        pg = bus.publisher("sim/gripper_command", m.GripperCommand)
-        for _ in range(3):
-            pg.publish(m.GripperCommand(stamp=s.now(), gap=0.05, max_force=30.0))
-            s.wait_sim(s.now() + 0.3)
-            print("GRIP", ls.get().joints.gripper_gap, ls.get().joints.gripper_effort)
 
     # 1. the top drawer, >= 15 cm (paper: drawers first)
     h0, _ = s.pose("top", s.drawers)
