@@ -71,12 +71,28 @@ class _Recorder:
             cv2.imwrite(str(self.out / "sheet.png"), sheet[:, :, ::-1])
         return len(self.frames)
 
+    def save_compact(self, path: Path) -> None:
+        """A small contact sheet for the docs: 8 frames evenly over the run, 320x240 each,
+        2 x 4, 256-colour PNG (~0.2-0.3 MB)."""
+        from PIL import Image
+
+        if not self.frames:
+            return
+        idx = np.linspace(0, len(self.frames) - 1, 8).round().astype(int)
+        tiles = [Image.fromarray(self.frames[i]).resize((320, 240)) for i in idx]
+        sheet = Image.new("RGB", (4 * 320, 2 * 240))
+        for k, tile in enumerate(tiles):
+            sheet.paste(tile, ((k % 4) * 320, (k // 4) * 240))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        sheet.quantize(256).save(path, optimize=True)
+
 
 def main(argv: list[str] | None = None) -> int:
     """Renders the four runs into ``OUT_DIR/<run>/``."""
     ap = argparse.ArgumentParser(prog="python -m quadmanip.services.manipulation.record")
     ap.add_argument("out", type=Path)
     ap.add_argument("--period", type=float, default=0.25)
+    ap.add_argument("--docs", type=Path, help="also write one compact sheet per run here")
     args = ap.parse_args(argv)
     cfg = load_manipulation_config()
     geom = ArmGeometry.from_description()
@@ -89,6 +105,8 @@ def main(argv: list[str] | None = None) -> int:
     plan = plan_grasp(geom, cfg, gs.position_base, gs.approach, gs.yaw, gs.width)
     p = h.run(GraspPrimitive(geom, cfg, plan), kp, kd, 30.0, every_tick=rec)
     h.run(_Idle(geom, cfg, 2.0), kp, kd, 3.0, every_tick=rec)
+    if args.docs:
+        rec.save_compact(args.docs / "floor_grasp.png")
     print("floor_grasp", p.status.value, rec.save())
 
     # table grasp (horizontal)
@@ -99,6 +117,8 @@ def main(argv: list[str] | None = None) -> int:
     plan = plan_grasp(geom, cfg, gs.position_base, gs.approach, gs.yaw, gs.width)
     p = h.run(GraspPrimitive(geom, cfg, plan), kp, kd, 30.0, every_tick=rec)
     h.run(_Idle(geom, cfg, 2.0), kp, kd, 3.0, every_tick=rec)
+    if args.docs:
+        rec.save_compact(args.docs / "table_grasp.png")
     print("table_grasp", p.status.value, rec.save())
 
     # place into the green box
@@ -120,6 +140,8 @@ def main(argv: list[str] | None = None) -> int:
         40.0,
         every_tick=rec,
     )
+    if args.docs:
+        rec.save_compact(args.docs / "place.png")
     print("place", p.status.value, rec.save())
 
     # drawer
@@ -129,6 +151,8 @@ def main(argv: list[str] | None = None) -> int:
     handle = h.world_to_base(h.data.body(world.drawer_handles["top"]).xpos)  # type: ignore[attr-defined]
     dplan = plan_drawer(geom, cfg, handle, np.array([-1.0, 0.0, 0.0]), 0.15)
     p = h.run(DrawerPrimitive(geom, cfg, dplan), kp, kd, 40.0, every_tick=rec)
+    if args.docs:
+        rec.save_compact(args.docs / "drawer.png")
     print("drawer", p.status.value, rec.save())
     return 0
 
