@@ -209,17 +209,16 @@ def _place_trial(name: str) -> dict[str, Any]:
 def _drawer_place_trial(name: str, out: dict[str, Any]) -> dict[str, Any]:
     """Tools go into the top drawer: open it, carry posture, grasp from a stool, place."""
     from quadmanip.services.manipulation.drawer import DrawerPrimitive, plan_drawer
-    from quadmanip.services.manipulation.grasp import GraspPrimitive, GraspRejected
+    from quadmanip.services.manipulation.grasp import GraspPrimitive, GraspRejected, plan_grasp
     from quadmanip.services.manipulation.place import PlacePrimitive, plan_place
     from quadmanip.services.manipulation.postures import resolve_postures
-    from quadmanip.services.manipulation.primitive import PostureMove, Status
+    from quadmanip.services.manipulation.primitive import BodyPoseRequest, PostureMove, Status
     from quadmanip.services.manipulation.sim_harness import (
         SimHarness,
         drawer_mouth,
         drawer_place_world,
         grasp_from_ground_truth,
         in_region,
-        plan_grasp_from_ground_truth,
     )
     from quadmanip.sim.world.objects import load_catalogue
 
@@ -228,15 +227,22 @@ def _drawer_place_trial(name: str, out: dict[str, Any]) -> dict[str, Any]:
     kp, kd = cfg.motion.kp, cfg.motion.kd
     stool = 0.20
     # (harness limit: the robot cannot walk here, so the tool lies right in front of the
-    # open drawer; long tools reach under it)
+    # open drawer.) Between the trunk front and the opened drawer's handle there are only
+    # ~13 cm: lying along x, a tool longer than that hit the trunk and the drawer when
+    # lifted. It lies across the robot (along y, the way it goes into the drawer's mouth),
+    # and the body steps back 6 cm (body pose, what navigation would do with its feet) so
+    # the quarter-turned palm (13 cm long) fits between the trunk and the handle.
     o = load_catalogue().objects[name]
-    oyaw = 0.0
+    across = o.size[0] > 0.12
+    oyaw = math.pi / 2 if across else 0.0
+    ahead = 0.23 if across else 0.25
+    body = BodyPoseRequest(x_offset=-0.06 if across else 0.0)
     world = drawer_place_world(name, stool, yaw=oyaw)
     h = SimHarness(world=world)
     h.settle(0.3)
     # put the grasp point (not the bounding-box centre) 0.25 m ahead, as navigation would
-    off = float(grasp_from_ground_truth(h, name, stool, "vertical").position_base[0]) - 0.25
-    if abs(off) > 0.02:
+    off = float(grasp_from_ground_truth(h, name, stool, "vertical").position_base[0]) - ahead
+    if abs(off) > 0.005:
         world = drawer_place_world(name, stool, ahead=0.25 - off, yaw=oyaw)
         h = SimHarness(world=world)
         h.settle(0.3)
@@ -252,12 +258,18 @@ def _drawer_place_trial(name: str, out: dict[str, Any]) -> dict[str, Any]:
         out.update(success=False, reason=f"drawer: {d.reason}")
         return out
     h.run(PostureMove(geom, cfg, resolve_postures(geom, cfg)["carry"]), kp, kd, 20.0)
+    if body.x_offset:
+        h.request_body(body)
+        h.settle(cfg.grasp.body_settle_time)
     try:
-        gs, plan = plan_grasp_from_ground_truth(h, geom, cfg, name, stool, "vertical")
+        gs = grasp_from_ground_truth(h, name, stool, "vertical")
+        plan = plan_grasp(
+            geom, cfg, gs.position_base, gs.approach, gs.yaw, gs.width, body=body, tilt=gs.tilt
+        )
     except GraspRejected as exc:
         out.update(success=False, reason=f"grasp: {exc}")
         return out
-    g = h.run(GraspPrimitive(geom, cfg, plan), kp, kd, 30.0)
+    g = h.run(GraspPrimitive(geom, cfg, plan, body=body), kp, kd, 30.0)
     if g.status is not Status.SUCCEEDED:
         out.update(success=False, reason=f"grasp: {g.reason}")
         return out
