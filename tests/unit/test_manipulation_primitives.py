@@ -102,3 +102,50 @@ def test_cancel_holds_the_arm_where_it_is():
     assert float(np.max(np.abs(o.q_arm - q_cancel))) < 0.15
     tcp = fk_tcp(GEOM, o.q_arm)
     assert math.isfinite(tcp.x) and prim.step(o) == []  # a canceled primitive sends nothing
+
+
+def test_tilted_vertical_grasp_approaches_along_the_tool_axis():
+    # a bowl's flared wall (37 deg lean) is pinched with the tool leaned along it
+    tilt = math.radians(37.0)
+    p = np.array([0.45, 0.0, FLOOR_Z + 0.04])
+    plan = plan_grasp(GEOM, CFG, p, "vertical", math.pi / 2, 0.015, tilt=tilt)
+    pitch = math.pi / 2 - tilt
+    assert plan.reach.pitch == pytest.approx(pitch) and plan.ready.pitch == pytest.approx(pitch)
+    d = np.array([plan.reach.x - plan.ready.x, plan.reach.z - plan.ready.z])
+    axis = np.array([math.cos(pitch), -math.sin(pitch)])  # tool x axis in the arm plane
+    assert np.linalg.norm(d) == pytest.approx(CFG.grasp.grasp_ready_z)
+    assert float(d @ axis) == pytest.approx(CFG.grasp.grasp_ready_z)  # straight down the axis
+    assert plan.lift.z - plan.reach.z == pytest.approx(CFG.grasp.lift_height)
+    for bad in (1.2, float("nan")):
+        assert _reason(plan_grasp, GEOM, CFG, p, "vertical", 0.0, 0.015, tilt=bad) == (
+            "invalid_goal"
+        )
+    assert _reason(plan_grasp, GEOM, CFG, p, "horizontal", 0.0, 0.05, tilt=0.3) == "invalid_goal"
+
+
+def test_body_drift_is_odometry_minus_requested_body_offsets():
+    from quadmanip.services.manipulation.primitive import (
+        BodyPoseRequest,
+        Observation,
+        PostureMove,
+    )
+
+    q = np.zeros(4)
+    prim = PostureMove(GEOM, CFG, q)
+
+    def obs(t, base):
+        return Observation(t, q, q, 0.0, 0.0, base=base)
+
+    prim.step(obs(0.0, (2.0, 1.0, 0.30, math.pi / 2)))  # facing +y in the odometry frame
+    assert np.allclose(prim.body_drift(), 0.0)
+    # the trunk backed off 2 cm (world -y = body -x) and sagged 5 mm, unrequested
+    prim.step(obs(0.1, (2.0, 0.98, 0.295, math.pi / 2)))
+    assert np.allclose(prim.body_drift(), [-0.02, 0.0, -0.005], atol=1e-12)
+    # a requested 4 cm lateral shift (moveCOM, body +y = world -x) is not drift
+    prim.body = BodyPoseRequest(0.0, 0.04, 0.0)
+    prim.step(obs(0.2, (1.96, 0.98, 0.295, math.pi / 2)))
+    assert np.allclose(prim.body_drift(), [-0.02, 0.0, -0.005], atol=1e-12)
+    # without odometry (the in-process harness) there is no drift
+    fresh = PostureMove(GEOM, CFG, q)
+    fresh.step(obs(0.0, None))
+    assert np.allclose(fresh.body_drift(), 0.0)
