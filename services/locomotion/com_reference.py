@@ -16,6 +16,9 @@ Corrections to the paper (OCR / logic):
   with no commanded velocity can still correct a small offset.
 * The target may not run further than ``max_lead`` ahead of the estimated pose (a robot
   that is held back must not build up a large position error that it later sprints for).
+* While walking forward/backward, VEL_LIMIT gets a catch-up allowance of ``catch_up_gain`` ×
+  the target's lead along the heading (at most ``catch_up_max``): without it the plan, which
+  starts from the current velocity, settles about 10 % below the commanded speed.
 """
 
 from __future__ import annotations
@@ -37,6 +40,8 @@ class FsmParams:
     planned_ang_acc: float = 4.0
     max_lead: float = 0.15
     max_lead_yaw: float = 0.3
+    catch_up_gain: float = 1.0  # 1/s, extra VEL_LIMIT per metre the target leads
+    catch_up_max: float = 0.1  # m/s
 
 
 def omega_matrix(w: np.ndarray) -> np.ndarray:
@@ -195,7 +200,17 @@ class ComReference:
                 yaw_des,
             ]
         )
-        lin_lim = np.maximum(np.abs(self.v_target_world[:2]), pr.feed_back_vel)
+        # VEL_LIMIT = |v_target| (Sec. 6.2.1) plus a catch-up allowance proportional to how
+        # far the eq. (10) target leads along the robot's heading: integral action on the
+        # forward speed, which the FSM (it starts from the current velocity) lacks.
+        # Sideways it is left out: there it made the trunk roll over (measured).
+        heading = np.array([np.cos(yaw), np.sin(yaw)])
+        lead = float(np.dot(self.p_target[:2] - np.asarray(position[:2]), heading))
+        moving = abs(float(np.dot(self.v_target_world[:2], heading))) > 1e-6
+        catch_up = min(pr.catch_up_gain * abs(lead), pr.catch_up_max) if moving else 0.0
+        lin_lim = np.maximum(
+            np.abs(self.v_target_world[:2]) + catch_up * np.abs(heading), pr.feed_back_vel
+        )
         ang_lim = max(abs(self.yaw_rate_target), pr.feed_back_ang_vel)
         vel_limit = np.array([lin_lim[0], lin_lim[1], 0.3, 0.5, 0.5, ang_lim])
         thr = np.array([pr.adjust_vel_threshold] * 3 + [pr.adjust_ang_threshold] * 3)

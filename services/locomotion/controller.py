@@ -410,7 +410,14 @@ class LocomotionController:
             self._stop_requested = True
         # Estimator.
         foot_vel = self.kin.foot_velocities(dq16[:12])
-        self.est.update(dt, quat, gyro, accel, self.kin.foot_pos, foot_vel, contact.astype(float))
+        # Stance feet roll: their centres move by ω_calf × r·up, which is not base motion.
+        up_b = quat_to_rot(quat)[2, :]  # world z in the base frame
+        roll = self.kin.rolling_velocities(
+            dq16[:12], np.asarray(gyro, float), up_b, cfg.estimator.foot_radius
+        )
+        self.est.update(
+            dt, quat, gyro, accel, self.kin.foot_pos, foot_vel - roll, contact.astype(float)
+        )
         r = self.est.R
         rpy = rot_to_rpy(r)
         self.last_rpy = rpy

@@ -59,6 +59,7 @@ class LegKinematics:
         self.q = pin.neutral(m)
         self.foot_pos = np.zeros((4, 3))
         self.foot_jac = np.zeros((4, 3, 3))
+        self.foot_jac_ang = np.zeros((4, 3, 3))  # calf angular velocity per joint rate
         self.hip_pos = self._hip_positions()
         self.update(np.zeros(16))
         self.straight_leg_feet = self.foot_pos.copy()  # feet of straight legs (neutral pose)
@@ -81,6 +82,20 @@ class LegKinematics:
             self.foot_pos[i] = d.oMf[fid].translation
             jac = pin.getFrameJacobian(m, d, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
             self.foot_jac[i] = jac[:3, self._leg_v[3 * i : 3 * i + 3]]
+            self.foot_jac_ang[i] = jac[3:, self._leg_v[3 * i : 3 * i + 3]]
+
+    def rolling_velocities(
+        self, dq12: np.ndarray, omega_body: np.ndarray, up_body: np.ndarray, radius: float
+    ) -> np.ndarray:
+        """Velocity of each foot sphere's centre (base frame) when it rolls without slipping.
+
+        A round foot in stance does not keep its centre still: the centre moves by
+        ω_calf × (radius · up) as the calf turns over the contact point (≈ 7 % of the walking
+        speed for a 2 cm foot at a 0.3 m stance height if ignored).
+        """
+        dq = np.asarray(dq12, dtype=float).reshape(4, 3)
+        w_calf = np.asarray(omega_body)[None, :] + np.einsum("fij,fj->fi", self.foot_jac_ang, dq)
+        return np.cross(w_calf, radius * np.asarray(up_body)[None, :])
 
     def foot_velocities(self, dq12: np.ndarray) -> np.ndarray:
         """J q̇ per foot (4, 3), base frame (relative to the base)."""

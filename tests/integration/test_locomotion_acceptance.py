@@ -5,7 +5,8 @@ LiDAR off, the test-only disturbance channel on) and `quadmanip service locomoti
 child processes. The test process plays the operator: it sends mode / velocity / body pose
 commands and judges from the sim's ground truth (`sim/gt/base`), which the locomotion
 service never reads. Commands are timed in sim time (from `sim/clock`), since lockstep runs
-at whatever speed the machine allows.
+at whatever speed the machine allows. The robot starts at the house's start pose (0.8, 1.2);
+the scenario is chosen so that no floor object lies where the runs go (`clear_scenario`).
 
 The default suite runs stand → trot → stop, the push and the body poses (≈ 15 s each); the
 long runs (60 s stand, every velocity command, the 10 m route through the doorway) are
@@ -14,6 +15,7 @@ marked `slow`.
 
 from __future__ import annotations
 
+import functools
 import math
 import threading
 import time
@@ -32,7 +34,6 @@ SIM_ARGS = (
     "--set", "sensors.lidar.rate=0", "--set", "ground_truth.contacts_rate=0",
 )  # fmt: skip
 LOCO_ARGS = ("-m", "quadmanip.cli", "service", "locomotion")
-START_XY = np.array([0.8, 1.2])  # configs/house.toml [robot_start]
 
 
 def yaw_of(q: np.ndarray) -> float:
@@ -43,8 +44,11 @@ def yaw_of(q: np.ndarray) -> float:
 class Stack:
     """Router + sim + locomotion processes and the test's own bus connection."""
 
-    def __init__(self, endpoint: str, spawn: Callable, bus_factory: Callable) -> None:
-        self.sim = spawn(*SIM_ARGS, endpoint=endpoint, env={"MUJOCO_GL": "egl"})
+    def __init__(
+        self, endpoint: str, spawn: Callable, bus_factory: Callable, scenario: str = "paper-1"
+    ) -> None:
+        args = tuple(scenario if a == "paper-1" else a for a in SIM_ARGS)
+        self.sim = spawn(*args, endpoint=endpoint, env={"MUJOCO_GL": "egl"})
         self.loco = spawn(*LOCO_ARGS, endpoint=endpoint)
         self.bus = bus_factory(endpoint)
         self.lock = threading.Lock()
@@ -135,7 +139,7 @@ def track(stack: Stack, v: tuple[float, float, float], duration: float, settle: 
 
 @pytest.fixture
 def stack(zenoh_router, spawn, bus_factory) -> Stack:
-    return Stack(zenoh_router, spawn, bus_factory)
+    return Stack(zenoh_router, spawn, bus_factory, scenario=clear_scenario())
 
 
 def test_stand_trot_and_stop_over_zenoh(stack):
@@ -177,8 +181,8 @@ def test_stand_sixty_seconds_without_drift(stack):
 def test_tracks_every_velocity_command(stack):
     stack.stand_up()
     results = {}
-    # Ordered so that the robot stays clear of the west wall and the paper-1 objects.
-    for v in [(0.0, 0.3, 0.0), (0.0, -0.3, 0.0), (0.0, 0.0, 1.0), (0.0, 0.0, -1.0),
+    # Ordered so that the robot stays clear of the walls and the sofa.
+    for v in [(0.0, -0.3, 0.0), (0.0, 0.3, 0.0), (0.0, 0.0, 1.0), (0.0, 0.0, -1.0),
               (0.3, 0.0, 0.0), (-0.3, 0.0, 0.0), (0.3, 0.2, 0.5)]:  # fmt: skip
         results[v] = track(stack, v, 3.0)[:2]
         stack.send_vel(0.0, 0.0, 0.0)
@@ -224,20 +228,67 @@ def test_crouch_and_shift_over_zenoh(stack):
         assert abs(check(p)) < 0.01, f"body pose {cmd}: error {check(p):.4f} m"
 
 
+# A 10.5 m route (world frame): east through the living room on the y = 1.2 m lane (clear of
+# the sofa, the bookshelf and the tables), sideways to the doorway (y in [1.5, 2.5] at
+# x = 5), into the kitchen, back out, and west again.
+ROUTE = [(0.8, 1.2), (4.4, 1.2), (4.4, 2.0), (5.6, 2.0), (4.3, 2.0), (4.3, 1.2), (1.5, 1.2)]
+
+
+def route_clearance(scenario: str) -> float:
+    """Smallest distance from the route to a floor object of the scenario (m)."""
+    from quadmanip.sim.scenarios import get_scenario
+
+    def dist(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+        ab = b - a
+        t = float(np.clip(np.dot(p - a, ab) / np.dot(ab, ab), 0.0, 1.0))
+        return float(np.linalg.norm(p - (a + t * ab)))
+
+    pts = [np.asarray(w) for w in ROUTE]
+    floor = [
+        np.asarray(o.position[:2]) for o in get_scenario(scenario).objects if o.position[2] < 0.2
+    ]
+    return min(
+        (min(dist(p, a, b) for a, b in zip(pts, pts[1:], strict=False)) for p in floor),
+        default=math.inf,
+    )
+
+
+@functools.cache
+def clear_scenario() -> str:
+    """A scenario whose floor objects leave the test area free: nothing within x < 2.3 m,
+    y < 2.3 m of the living room (where the runs from the start pose go) and nothing within
+    0.45 m of ROUTE. Objects are the sim's business and change with its generator, so the
+    choice is made here, from the scenario definitions, rather than hard-coded."""
+    from quadmanip.sim.scenarios import get_scenario
+
+    for i in range(400):
+        name = f"seed-{i}"
+        floor = [o.position for o in get_scenario(name).objects if o.position[2] < 0.2]
+        if any(p[0] < 2.3 and p[1] < 2.3 for p in floor):
+            continue
+        if route_clearance(name) >= 0.45:
+            return name
+    raise AssertionError("no scenario leaves the locomotion test area clear")
+
+
 @pytest.mark.slow
-def test_ten_metre_route_through_the_doorway(stack):
-    """Waypoints followed with the robot's own odometry (paper-1 objects are avoided)."""
+def test_ten_metre_route_through_the_doorway(zenoh_router, spawn, bus_factory):
+    """Waypoints followed with the robot's own odometry, in a scenario whose floor objects
+    leave the route clear (the robot's footprint is ±0.2 m wide; objects are kept 0.45 m off)."""
+    scenario = next((f"seed-{i}" for i in range(200) if route_clearance(f"seed-{i}") >= 0.45), None)
+    assert scenario is not None, "no scenario leaves the route clear"
+    stack = Stack(zenoh_router, spawn, bus_factory, scenario=scenario)
     t0 = stack.stand_up()
     p_start, _ = stack.pose_at(t0)
     odo0 = stack.odom.get()
     offset = p_start[:2] - odo0.position[:2]  # odom → world (the known start pose)
-    waypoints = [(0.8, 0.4), (4.5, 0.4), (4.5, 2.0), (5.5, 2.0), (4.3, 2.0), (4.3, 0.45),
-                 (2.0, 0.45)]  # fmt: skip
+    waypoints = ROUTE[1:]
     travelled = 0.0
+    trace: list = []
     last = p_start[:2].copy()
     for wx, wy in waypoints:
         goal = np.array([wx, wy])
-        deadline = time.monotonic() + 300
+        deadline = time.monotonic() + 120
         while True:
             odo = stack.odom.get()
             pos = odo.position[:2] + offset
@@ -245,7 +296,12 @@ def test_ten_metre_route_through_the_doorway(stack):
             d = goal - pos
             if np.linalg.norm(d) < 0.08:
                 break
-            assert time.monotonic() < deadline
+            trace.append((stack.now(), pos.copy(), stack.pose_at(stack.now())[0].copy()))
+            assert time.monotonic() < deadline, (
+                f"stuck going to {goal}: odom+offset {pos}, truth {stack.pose_at(stack.now())}, "
+                f"sim time {stack.now():.1f}\n"
+                + "\n".join(f"{t:.1f} odom {o.round(2)} gt {g.round(2)}" for t, o, g in trace[::25])
+            )
             c, s = math.cos(yaw), math.sin(yaw)
             local = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1]])
             v = local / max(np.linalg.norm(local), 1e-9) * min(0.45, 1.5 * np.linalg.norm(local))
