@@ -273,14 +273,17 @@ def scenario_names() -> tuple[str, ...]:
 
 
 def get_scenario(name_or_seed: str | int) -> Scenario:
-    """``"paper-3"`` → Table 4 trial 3; ``17``, ``"17"`` or ``"seed-17"`` → ``generate(17)``."""
+    """``"paper-3"`` → Table 4 trial 3; ``17``, ``"17"`` or ``"seed-17"`` → ``generate(17)``;
+    ``"empty"`` → the house without objects (locomotion and navigation runs)."""
     if isinstance(name_or_seed, int):
         return generate(name_or_seed)
     text = str(name_or_seed).strip()
+    if text == "empty":
+        return Scenario(name="empty", seed=0, objects=())
     m = re.fullmatch(r"paper-(\d+)", text)
     if m and int(m.group(1)) in PAPER_TRIALS:
         return paper_scenario(int(m.group(1)))
     m = re.fullmatch(r"(?:seed-)?(\d+)", text)
     if m:
         return generate(int(m.group(1)))
-    raise KeyError(f"unknown scenario {name_or_seed!r} (use paper-1..5 or a seed)")
+    raise KeyError(f"unknown scenario {name_or_seed!r} (use paper-1..5, a seed or 'empty')")

@@ -120,6 +120,14 @@ def test_paper_scenario_is_collision_free_with_the_robot():
     assert world.house.room_at(base[0], base[1]) == "living_room"
 
 
+def test_empty_scenario_is_the_house_without_objects():
+    scenario = get_scenario("empty")
+    assert scenario.objects == ()
+    world = build_world(scenario)
+    assert world.object_names == ()
+    assert not any(world.model.body(i).name.startswith("obj/") for i in range(world.model.nbody))
+
+
 def test_unknown_scenario_is_an_error():
     with pytest.raises(KeyError):
         get_scenario("paper-9")
