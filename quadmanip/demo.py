@@ -1,7 +1,9 @@
 """`quadmanip demo` (`make demo`): start the stack that exists and show it working.
 
 Until the task (behavior) service exists, the demo is a live look at the bus: it starts a
-router and every registered service (the sim in ``realtime`` mode), listens to every key
+router and every registered service (the sim in ``lockstep`` mode when a leg controller is
+registered, else ``realtime``), plays the operator (stand up, trot forward, trot on a curve,
+stop: :mod:`quadmanip.demo_operator`), listens to every key
 under ``qm/**`` like a real robot's operator console would, prints a table of what arrives
 (key, message type, rate, last stamp), writes the camera frames it sees as PNGs, and stops
 everything cleanly. With no service registered yet it still exercises the real thing: an
@@ -28,10 +30,16 @@ from typing import TextIO
 import numpy as np
 
 from quadmanip import services_registry
+from quadmanip.demo_operator import DemoOperator
 from quadmanip.launcher import Launcher, free_endpoint, install_stop_signals
 
-# Extra arguments per service when the demo runs it (the sim free-runs in real time).
+# Extra arguments per service when the demo runs it. With a leg controller the sim runs in
+# lockstep (it waits for every leg command, so a slow machine slows the demo down instead of
+# making the robot stumble); without one it free-runs in real time.
 DEMO_SERVICE_ARGS: dict[str, list[str]] = {"sim": ["--realtime"]}
+LOCKSTEP_SIM_ARGS = ["--lockstep"]
+# The robot must really walk in the demo: at least this far (ground truth, display only).
+MIN_WALK_M = 0.3
 SUMMARY_EVERY_S = 5.0  # table period when stdout is not a terminal
 
 
@@ -233,7 +241,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Start a router and every registered service, show the live traffic, "
         "save camera frames as PNGs, then stop everything.",
     )
-    p.add_argument("--duration", type=float, default=20.0, help="seconds to run (default 20)")
+    p.add_argument("--duration", type=float, default=25.0, help="seconds to run (default 25)")
     p.add_argument("--out", default="demo-output", help="folder for PNGs and the stack log")
     p.add_argument("--robot", default="dog1", help="robot name (default dog1)")
     p.add_argument("--listen", help="router endpoint (default: a free loopback port)")
@@ -270,6 +278,9 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
         flush=True,
     )
     service_args = {k: list(v) for k, v in DEMO_SERVICE_ARGS.items()}
+    drive = "sim" in names and "locomotion" in names
+    if drive:
+        service_args["sim"] = list(LOCKSTEP_SIM_ARGS)
     if "viz" in names:
         # The Rerun recording goes next to the pictures (`rerun FILE.rrd` replays it).
         rrd = json.dumps(str(out_dir / "quadmanip_{time}.rrd"))
@@ -290,13 +301,15 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
         except RuntimeError as exc:
             print(f"demo: {exc} (see {log_path})", file=out)
             return 1
-        bus = monitor = roundtrip = None
+        bus = monitor = roundtrip = operator = None
+        walked: float | None = None
         died = None
         try:
             bus = Bus(BusConfig(mode="client", connect=(launcher.connect or listen,)), args.robot)
             monitor = BusMonitor(bus)
             writer = FrameWriter(out_dir, args.frames_every)
             roundtrip = RoundTrip(bus, launcher.connect or listen) if roundtrip_on else None
+            operator = DemoOperator(bus) if drive else None
             t0 = time.monotonic()
             last_print = -1e9
             while not stop.wait(0.2):
@@ -308,10 +321,13 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
                 period = 1.0 if tty else SUMMARY_EVERY_S
                 if time.monotonic() - last_print >= period:
                     last_print = time.monotonic()
-                    table = monitor.render(elapsed, roundtrip.lines() if roundtrip else [])
+                    table = monitor.render(elapsed, _extra_lines(roundtrip, operator))
                     print(("\x1b[H\x1b[J" if tty else "\n") + table, file=out, flush=True)
-            final = monitor.render(time.monotonic() - t0, roundtrip.lines() if roundtrip else [])
+            final = monitor.render(time.monotonic() - t0, _extra_lines(roundtrip, operator))
+            walked = operator.walked_m() if operator is not None else None
         finally:
+            if operator is not None:
+                operator.stop()
             if roundtrip is not None:
                 roundtrip.stop()
             if monitor is not None:
@@ -320,7 +336,20 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
                 bus.close()
             launcher.stop()
     print("\n" + final, file=out)
-    return _verdict(out, names, monitor, roundtrip, died, writer, log_path, args.robot)
+    code = _verdict(out, names, monitor, roundtrip, died, writer, log_path, args.robot)
+    if drive:
+        if walked is None or walked < MIN_WALK_M:
+            print(
+                f"demo: FAILED: the robot did not walk (moved {walked} m); see {log_path}", file=out
+            )
+            code = 1
+        else:
+            print(f"demo: the robot stood up and walked {walked:.2f} m (ground truth)", file=out)
+    return code
+
+
+def _extra_lines(roundtrip: RoundTrip | None, operator: DemoOperator | None) -> list[str]:
+    return (roundtrip.lines() if roundtrip else []) + (operator.lines() if operator else [])
 
 
 def _verdict(

@@ -177,7 +177,7 @@ def test_demo_runs_the_stack_and_saves_camera_frames(tmp_path):
             "quadmanip.cli",
             "demo",
             "--duration",
-            "8",
+            "20",
             "--out",
             str(out),
             "--frames-every",
@@ -208,3 +208,6 @@ def test_demo_runs_the_stack_and_saves_camera_frames(tmp_path):
         assert image.std() > 5.0  # a rendered room, not a blank frame
     if "viz" in running:
         assert list(out.glob("*.rrd")), "the viz recording belongs in the demo's --out folder"
+    if {"sim", "locomotion"} <= running:
+        # The operator script makes the robot stand up and trot; the demo checks it moved.
+        assert "demo: the robot stood up and walked" in result.stdout, result.stdout[-3000:]
