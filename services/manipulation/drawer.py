@@ -30,7 +30,6 @@ from quadmanip.services.manipulation.primitive import (
     PrimitiveFailed,
     Script,
 )
-from quadmanip.services.manipulation.trajectory import plan_cartesian_line
 
 __all__ = ["DrawerPlan", "DrawerPrimitive", "plan_drawer"]
 
@@ -182,22 +181,6 @@ class DrawerPrimitive(Primitive):
         super().__init__(geom, cfg, monitor, body)
         self.plan = plan
 
-    def _line_to(self, goal: ArmTarget, speed: float | None = None) -> Script:
-        obs = self._last_obs
-        assert obs is not None
-        m = self.cfg.motion
-        traj = plan_cartesian_line(
-            self.geom,
-            obs.q_arm,
-            goal,
-            obs.t,
-            self.limits,
-            linear_speed=speed or m.linear_speed,
-            angular_speed=m.angular_speed,
-            dt=m.dt,
-        )
-        yield from self.run_trajectory(traj)
-
     def script(self) -> Script:
         """Approach, grip, pull (arm, then body), release, back off."""
         plan = self.plan
@@ -209,7 +192,7 @@ class DrawerPrimitive(Primitive):
         self.stage("drawer: in front of the handle", 0.2)
         yield from self.move_joints(np.asarray(plan.q_ready))
         self.stage("drawer: reach the handle", 0.35)
-        yield from self._line_to(plan.grip)
+        yield from self.line_to(plan.grip)
         # the handle is fixed in the world: follow the trunk's unplanned drift (odometry)
         for _ in range(3):
             yield from self.wait(0.2)
@@ -221,14 +204,14 @@ class DrawerPrimitive(Primitive):
             if math.hypot(want.x - here.x, want.z - here.z) < DRIFT_TOL:
                 break
             self.stage(f"drawer: follow body drift {d[0]:+.3f} m", 0.4)
-            yield from self._line_to(want)
+            yield from self.line_to(want)
         self.stage("drawer: grip", 0.45)
         yield from self.close_gripper()
         if self.monitor.state is not GripState.HOLDING:
             yield from self.open_gripper()
             raise PrimitiveFailed("handle_missed: fingers closed on nothing")
         self.stage("drawer: pull", 0.6)
-        yield from self._line_to(plan.pulled, speed=0.1)
+        yield from self.line_to(plan.pulled, speed=0.1)
         if plan.body_pull > 0.0:
             yield from self.move_body(b.x_offset - plan.body_pull, b.y_offset, b.z_offset)
         if self.monitor.state is not GripState.HOLDING:
@@ -247,6 +230,6 @@ class DrawerPrimitive(Primitive):
             for dp in (0.0, 0.3, -0.3, 0.6):
                 nxt = ArmTarget(here.x + dx, here.z + dz, here.pitch + dp, float(obs.q_arm[3]))
                 if solve_ik(self.geom, nxt, q_ref=obs.q_arm, roll_symmetric=False).ok:
-                    yield from self._line_to(nxt)
+                    yield from self.line_to(nxt)
                     break
         yield from self.move_body(0.0, 0.0, 0.0)

@@ -49,7 +49,6 @@ from quadmanip.services.manipulation.primitive import (
     PrimitiveFailed,
     Script,
 )
-from quadmanip.services.manipulation.trajectory import plan_cartesian_line
 
 __all__ = ["GraspPlan", "GraspPrimitive", "GraspRejected", "plan_grasp"]
 
@@ -233,22 +232,6 @@ class GraspPrimitive(Primitive):
         self.restore_body = restore_body
         self.t_lifted: float | None = None
 
-    def _line_to(self, goal: ArmTarget) -> Script:
-        obs = self._last_obs
-        assert obs is not None
-        m = self.cfg.motion
-        traj = plan_cartesian_line(
-            self.geom,
-            obs.q_arm,
-            goal,
-            obs.t,
-            self.limits,
-            linear_speed=m.linear_speed,
-            angular_speed=m.angular_speed,
-            dt=m.dt,
-        )
-        yield from self.run_trajectory(traj)
-
     def script(self) -> Script:
         """Algorithm 6: grasp-ready phase, grasp phase, close, verify, lift, verify."""
         plan, g = self.plan, self.cfg.grasp
@@ -260,7 +243,7 @@ class GraspPrimitive(Primitive):
         self.stage("grasp_ready: arm above/behind the grasp point", 0.2)
         yield from self.move_joints(np.asarray(plan.q_ready))
         self.stage("grasp: approach", 0.4)
-        yield from self._line_to(plan.reach)
+        yield from self.line_to(plan.reach)
         b = plan.body_grasp
         if b != self.body:
             self.stage("grasp: shift the body forward (COM x)", 0.5)
@@ -278,7 +261,7 @@ class GraspPrimitive(Primitive):
         lift = ArmTarget(here.x, here.z + g.lift_height, plan.lift.pitch, float(obs.q_arm[3]))
         if not solve_ik(self.geom, lift, q_ref=obs.q_arm, roll_symmetric=False).ok:
             lift = ArmTarget(plan.lift.x, plan.lift.z, plan.lift.pitch, float(obs.q_arm[3]))
-        yield from self._line_to(lift)
+        yield from self.line_to(lift)
         yield from self.wait(g.verify_time)
         if not self.monitor.holding:
             raise PrimitiveFailed(f"object_lost during lift ({self.monitor.state.value})")

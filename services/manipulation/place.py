@@ -30,7 +30,6 @@ from quadmanip.services.manipulation.primitive import (
     PrimitiveFailed,
     Script,
 )
-from quadmanip.services.manipulation.trajectory import plan_cartesian_line
 
 __all__ = ["PlacePlan", "PlacePrimitive", "plan_place"]
 
@@ -123,22 +122,6 @@ class PlacePrimitive(Primitive):
         super().__init__(geom, cfg, monitor, body)
         self.plan = plan
 
-    def _line_to(self, goal: ArmTarget) -> Script:
-        obs = self._last_obs
-        assert obs is not None
-        m = self.cfg.motion
-        traj = plan_cartesian_line(
-            self.geom,
-            obs.q_arm,
-            goal,
-            obs.t,
-            self.limits,
-            linear_speed=m.linear_speed,
-            angular_speed=m.angular_speed,
-            dt=m.dt,
-        )
-        yield from self.run_trajectory(traj)
-
     def script(self) -> Script:
         """Transit above the region, lower, open, retract, verify the fingers are empty."""
         plan = self.plan
@@ -156,14 +139,14 @@ class PlacePrimitive(Primitive):
         here = fk_tcp(self.geom, obs.q_arm)
         up = ArmTarget(here.x, max(here.z, plan.transit.z), here.pitch, float(obs.q_arm[3]))
         if solve_ik(self.geom, up, q_ref=obs.q_arm, roll_symmetric=False).ok:
-            yield from self._line_to(up)
-        yield from self._line_to(plan.transit)
+            yield from self.line_to(up)
+        yield from self.line_to(plan.transit)
         self.stage("place: lower", 0.45)
-        yield from self._line_to(plan.release)
+        yield from self.line_to(plan.release)
         self.stage("place: release", 0.6)
         yield from self.open_gripper(settle=0.5)
         self.stage("place: retract", 0.75)
-        yield from self._line_to(plan.retract)
+        yield from self.line_to(plan.retract)
         self.stage("place: verify empty", 0.9)
         yield from self.close_gripper()
         if self.monitor.state is GripState.HOLDING:

@@ -24,6 +24,7 @@ from quadmanip.services.manipulation.trajectory import (
     MotionLimits,
     TrajectoryError,
     hold,
+    plan_cartesian_line,
     plan_joint_path,
 )
 
@@ -251,6 +252,24 @@ class Primitive:
         obs = self._last_obs
         assert obs is not None
         traj = plan_joint_path([obs.q_arm, q_goal], obs.t, self.limits, dt=self.cfg.motion.dt)
+        yield from self.run_trajectory(traj)
+
+    def line_to(self, goal: Any, speed: float | None = None) -> Script:
+        """Straight-line tool move from the measured joints to ``goal`` (an ``ArmTarget``),
+        at ``speed`` m/s or the configured linear speed."""
+        obs = self._last_obs
+        assert obs is not None
+        m = self.cfg.motion
+        traj = plan_cartesian_line(
+            self.geom,
+            obs.q_arm,
+            goal,
+            obs.t,
+            self.limits,
+            linear_speed=speed or m.linear_speed,
+            angular_speed=m.angular_speed,
+            dt=m.dt,
+        )
         yield from self.run_trajectory(traj)
 
     def wait(self, duration: float) -> Script:
