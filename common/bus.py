@@ -356,6 +356,28 @@ class TypedPublisher(Generic[M]):
             pass
 
 
+def _decode_counted(bus: Bus, owner: Any, key: str, data: bytes) -> Any:
+    """Decode ``data`` as ``owner.msg_type``. A ``MessageError`` is counted (on ``owner`` and
+    in the bus stats), logged at most once per period per key, and gives None: a malformed
+    payload never reaches a callback and never stops the stream."""
+    try:
+        return decode(data, expected=owner.msg_type)
+    except MessageError as exc:
+        owner.error_count += 1
+        bus.stats.add(owner.key, "decode_errors", error=str(exc))
+        log.throttled(
+            f"decode:{owner.key}",
+            bus.config.error_log_period_s,
+            logging.WARNING,
+            "dropped malformed message",
+            key=key,
+            expected=owner.msg_type.__name__,
+            error=str(exc),
+            errors=owner.error_count,
+        )
+        return None
+
+
 class TypedSubscriber(Generic[M]):
     """Decodes samples on one key expression into ``msg_type``; see :meth:`Bus.subscribe`.
 
@@ -424,21 +446,8 @@ class TypedSubscriber(Generic[M]):
     def _deliver(self, key: str, data: bytes) -> None:
         self.received_count += 1
         self._bus.stats.add(self.key, "received")
-        try:
-            msg = decode(data, expected=self.msg_type)
-        except MessageError as exc:
-            self.error_count += 1
-            self._bus.stats.add(self.key, "decode_errors", error=str(exc))
-            log.throttled(
-                f"decode:{self.key}",
-                self._bus.config.error_log_period_s,
-                logging.WARNING,
-                "dropped malformed message",
-                key=key,
-                expected=self.msg_type.__name__,
-                error=str(exc),
-                errors=self.error_count,
-            )
+        msg = _decode_counted(self._bus, self, key, data)
+        if msg is None:
             return
         try:
             self._callback(msg)
@@ -501,19 +510,9 @@ class LatestCache(Generic[M]):
         with self._lock:
             if self._seq != self._decoded_seq and self._raw is not None:
                 raw, self._decoded_seq = self._raw, self._seq
-                try:
-                    self._msg = decode(raw, expected=self.msg_type)
-                except MessageError as exc:
-                    self.error_count += 1
-                    self._bus.stats.add(self.key, "decode_errors", error=str(exc))
-                    log.throttled(
-                        f"decode:{self.key}",
-                        self._bus.config.error_log_period_s,
-                        logging.WARNING,
-                        "dropped malformed message",
-                        key=self.key,
-                        error=str(exc),
-                    )
+                msg = _decode_counted(self._bus, self, self.key, raw)
+                if msg is not None:
+                    self._msg = msg
             return self._msg
 
     @property
