@@ -377,11 +377,12 @@ class PostureGoal(Message):
     duration: float = 0.0  # 0: let the planner choose from velocity limits
 
 
-@message("qm.GraspGoal", (1, 0))
+@message("qm.GraspGoal", (1, 1))
 class GraspGoal(Message):
     """Grasp an object at ``position`` (base frame) about ``yaw`` (rad, base frame);
     ``approach`` vertical (from above), horizontal, or auto; ``width`` is the object's
-    width across the fingers (m)."""
+    width across the fingers (m); ``tilt`` (rad, vertical grasps) leans the tool forward so
+    the pads lie flat on a flared wall such as a bowl's (1.1: added, default 0)."""
 
     stamp: float
     position: np.ndarray = array("f8", (3,))
@@ -389,6 +390,7 @@ class GraspGoal(Message):
     approach: str = string(choices=("auto", "vertical", "horizontal"), default="auto")
     width: float = 0.05
     object_name: str = ""
+    tilt: float = 0.0
 
 
 @message("qm.PlaceGoal", (1, 0))

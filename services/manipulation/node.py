@@ -135,7 +135,9 @@ class ManipulationNode(Service):
             err: GraspRejected | None = None
             for ap in approaches:
                 try:
-                    plan = plan_grasp(self.geom, cfg, pos, ap, goal.yaw, goal.width, self.body)
+                    plan = plan_grasp(
+                        self.geom, cfg, pos, ap, goal.yaw, goal.width, self.body, tilt=goal.tilt
+                    )
                 except GraspRejected as exc:
                     err = err or exc
                     continue
