@@ -444,7 +444,9 @@ def run_service(
     svc: Service | None = None
     try:
         bus = Bus(bus_config, robot=args.robot)
-        if bus_config.robot_clock:
+        # Follow robot time unless this service is the clock's source (the sim stamps with
+        # its own engine time).
+        if bus_config.robot_clock and all(o.topic != bus_config.robot_clock for o in cls.outputs):
             bus.follow_clock(bus_config.robot_clock)
         svc = cls(bus, config, args)
         holder["svc"] = svc
