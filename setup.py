@@ -4,7 +4,10 @@ from setuptools import find_namespace_packages, setup
 
 TOP_LEVEL = ("common", "services", "sim", "configs")
 
-packages = ["quadmanip"]
+packages = [
+    "quadmanip",
+    *find_namespace_packages(include=["quadmanip.*"], exclude=["*__pycache__*"]),
+]
 package_dir = {"quadmanip": "quadmanip"}
 for folder in TOP_LEVEL:
     package_dir[f"quadmanip.{folder}"] = folder

@@ -93,6 +93,7 @@ _TABLE: tuple[Topic, ...] = (
     # ground truth: judge, tests and visualisation only
     _t("sim", "gt/base", m.GroundTruthPoses, "gt", "out", "true base pose (name 'base')"),
     _t("sim", "gt/objects", m.GroundTruthPoses, "gt", "out", "true object poses"),
+    _t("sim", "gt/drawers", m.GroundTruthPoses, "gt", "out", "true drawer-handle poses"),
     _t("sim", "gt/contacts", m.GroundTruthContacts, "gt", "out", "true contacts"),
     _t("sim", "gt/judge", m.JudgeReport, "gt", "out", "judge verdict"),
     # locomotion

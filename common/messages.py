@@ -393,13 +393,17 @@ class GraspGoal(Message):
     tilt: float = 0.0
 
 
-@message("qm.PlaceGoal", (1, 0))
+@message("qm.PlaceGoal", (1, 1))
 class PlaceGoal(Message):
-    """Place the held object at ``position`` (base frame), released from above."""
+    """Place the held object at ``position`` (base frame), released from above. With
+    ``turn`` the gripper first turns to ``yaw`` (the grasp's convention: 0 = fingers along
+    the body y axis), e.g. to lay a long object along a narrow region; without it the
+    grasp's roll is kept (1.1: ``turn`` added; before, ``yaw`` was ignored)."""
 
     stamp: float
     position: np.ndarray = array("f8", (3,))
     yaw: float = 0.0
+    turn: bool = False
 
 
 @message("qm.DrawerGoal", (1, 0))

@@ -99,6 +99,7 @@ class TickOutput:
     images: list[msg.RgbdImage] = field(default_factory=list)
     scan: msg.LaserScan | None = None
     gt_poses: msg.GroundTruthPoses | None = None
+    gt_drawers: msg.GroundTruthPoses | None = None
     gt_contacts: msg.GroundTruthContacts | None = None
     judge: msg.JudgeReport | None = None
 
@@ -204,6 +205,9 @@ class SimEngine:
         body_ids = getattr(world, "object_body_ids", {}) or {}
         self._object_bodies = np.array([body_ids[n] for n in self.object_names], dtype=int)
         self._judge_on = ground_truth and hasattr(world, "regions")
+        handles = getattr(world, "drawer_handles", {}) or {}
+        self._drawer_names = list(handles)
+        self._drawer_bodies = np.array([m.body(b).id for b in handles.values()], dtype=int)
 
         self.tick = 0
         self.start_time = float(self.data.time)
@@ -357,6 +361,19 @@ class SimEngine:
             orientations=d.xquat[ids],
         )
 
+    def gt_drawers(self) -> msg.GroundTruthPoses | None:
+        """GROUND TRUTH: world poses of the drawer handles (names ``left``/``right``/``top``;
+        None for a world without drawers). How far a drawer is open is its handle's travel."""
+        if not self._drawer_names:
+            return None
+        d = self.data
+        return msg.GroundTruthPoses(
+            stamp=self.time,
+            names=list(self._drawer_names),
+            positions=d.xpos[self._drawer_bodies],
+            orientations=d.xquat[self._drawer_bodies],
+        )
+
     def gt_contacts(self) -> msg.GroundTruthContacts:
         """GROUND TRUTH: the contacts of the last captured step (see ``physics_step``)."""
         assert self._contacts is not None
@@ -420,6 +437,7 @@ class SimEngine:
             out.scan = self.scan()
         if self._due(self._poses_every):
             out.gt_poses = self.gt_poses()
+            out.gt_drawers = self.gt_drawers()
         if self._due(self._contacts_every):
             out.gt_contacts = self.gt_contacts()
         if self._due(self._judge_every):

@@ -4,7 +4,7 @@ It speaks exactly the keys a hardware adapter would (ARCHITECTURE.md, "Hardware 
 contract"): LowState every control tick on ``sim/lowstate``, ``sim/clock``, RGB-D frames on
 ``sim/camera/front`` and ``sim/camera/gripper``, LiDAR on ``sim/scan``; it takes
 ``sim/leg_command``, ``sim/arm_trajectory``, ``sim/gripper_command``. Ground truth goes
-only under ``sim/gt/**`` (base and object poses, contacts, the judge's report), and the
+only under ``sim/gt/**`` (base, object and drawer-handle poses, contacts, the judge's report), and the
 test-only ``sim/test/disturbance`` is obeyed only when ``allow_test_disturbance`` is set.
 
 Threading: Zenoh callbacks only put commands into inboxes; one loop thread owns the engine
@@ -68,6 +68,7 @@ class SimNode(Service):
         Output("sim/scan", msg.LaserScan, kind="sensor"),
         Output("sim/gt/base", msg.GroundTruthPoses, kind="gt"),
         Output("sim/gt/objects", msg.GroundTruthPoses, kind="gt"),
+        Output("sim/gt/drawers", msg.GroundTruthPoses, kind="gt"),
         Output("sim/gt/contacts", msg.GroundTruthContacts, kind="gt"),
         Output("sim/gt/judge", msg.JudgeReport, kind="gt"),
     )
@@ -156,6 +157,8 @@ class SimNode(Service):
                     orientations=g.orientations[1:],
                 )
             )
+        if out.gt_drawers is not None:
+            p["sim/gt/drawers"].publish(out.gt_drawers)
         if out.gt_contacts is not None:
             p["sim/gt/contacts"].publish(out.gt_contacts)
         if out.judge is not None:

@@ -14,9 +14,12 @@ about z, their lowest point 1 mm above the surface.
 
 from __future__ import annotations
 
+import json
 import math
 import re
+import tomllib
 from dataclasses import dataclass
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -29,8 +32,10 @@ __all__ = [
     "Scenario",
     "generate",
     "get_scenario",
+    "load_scenario_file",
     "object_contacts",
     "paper_scenario",
+    "save_scenario_file",
     "scenario_names",
 ]
 
@@ -117,11 +122,13 @@ class Placement:
 
 @dataclass(frozen=True)
 class Scenario:
-    """A trial's initial world: name, seed and the placed objects."""
+    """A trial's initial world: name, seed, the placed objects and, optionally, where the
+    robot starts (x, y in m, yaw in deg; ``None``: the house config's ``robot_start``)."""
 
     name: str
     seed: int
     objects: tuple[Placement, ...]
+    robot_start: tuple[float, float, float] | None = None
 
     @property
     def object_names(self) -> tuple[str, ...]:
@@ -272,12 +279,102 @@ def scenario_names() -> tuple[str, ...]:
     return tuple(f"paper-{i}" for i in PAPER_TRIALS)
 
 
+def _floats(value: object, n: int, what: str) -> tuple[float, ...]:
+    if not isinstance(value, list | tuple) or len(value) != n:
+        raise ValueError(f"{what}: expected {n} numbers, got {value!r}")
+    out = []
+    for v in value:
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+            raise ValueError(f"{what}: expected {n} finite numbers, got {value!r}")
+        out.append(float(v))
+    return tuple(out)
+
+
+def load_scenario_file(path: str | Path, catalogue: Catalogue | None = None) -> Scenario:
+    """A scenario from a TOML file (see :func:`save_scenario_file` for the format).
+
+    An object's orientation is ``quat`` (w, x, y, z) or ``yaw`` (deg, upright); names must be
+    catalogue names, each at most once. Raises ``ValueError`` naming the bad entry.
+    """
+    path = Path(path)
+    catalogue = catalogue or load_catalogue()
+    try:
+        doc = tomllib.loads(path.read_text())
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise ValueError(f"scenario file {path}: {exc}") from exc
+    unknown = set(doc) - {"name", "seed", "robot_start", "objects"}
+    if unknown:
+        raise ValueError(f"scenario file {path}: unknown keys {sorted(unknown)}")
+    start = doc.get("robot_start")
+    robot_start = None if start is None else _floats(start, 3, f"{path}: robot_start")
+    placements: list[Placement] = []
+    for i, o in enumerate(doc.get("objects", [])):
+        where = f"{path}: objects[{i}]"
+        bad = set(o) - {"name", "surface", "position", "quat", "yaw"}
+        if bad:
+            raise ValueError(f"{where}: unknown keys {sorted(bad)}")
+        name = o.get("name")
+        if name not in catalogue.objects:
+            raise ValueError(f"{where}: unknown object {name!r} (see configs/objects.toml)")
+        if any(p.name == name for p in placements):
+            raise ValueError(f"{where}: {name!r} placed twice")
+        if ("quat" in o) == ("yaw" in o):
+            raise ValueError(f"{where}: give exactly one of quat or yaw")
+        if "quat" in o:
+            q = np.asarray(_floats(o["quat"], 4, f"{where}: quat"))
+            if np.linalg.norm(q) < 1e-9:
+                raise ValueError(f"{where}: quat is zero")
+            if abs(np.linalg.norm(q) - 1.0) > 1e-9:  # keep a saved unit quaternion exact
+                q = q / np.linalg.norm(q)
+            quat = tuple(float(v) for v in q)
+        else:
+            quat = _yaw_quat(math.radians(_floats([o["yaw"]], 1, f"{where}: yaw")[0]))
+        pos = _floats(o.get("position"), 3, f"{where}: position")
+        placements.append(Placement(name, str(o.get("surface", "floor")), pos, quat))  # type: ignore[arg-type]
+    return Scenario(
+        name=str(doc.get("name", path.stem)),
+        seed=int(doc.get("seed", 0)),
+        objects=tuple(placements),
+        robot_start=robot_start,  # type: ignore[arg-type]
+    )
+
+
+def save_scenario_file(scenario: Scenario, path: str | Path) -> Path:
+    """Write ``scenario`` as TOML that :func:`load_scenario_file` reads back exactly."""
+
+    def arr(v: tuple[float, ...]) -> str:
+        return "[" + ", ".join(repr(float(x)) for x in v) + "]"
+
+    lines = [
+        "# A quadmanip scenario: the world when a trial starts (sim/scenarios.py).",
+        f"name = {json.dumps(scenario.name)}",
+        f"seed = {int(scenario.seed)}",
+    ]
+    if scenario.robot_start is not None:
+        lines.append(f"robot_start = {arr(scenario.robot_start)}  # x, y (m), yaw (deg)")
+    for p in scenario.objects:
+        lines += [
+            "",
+            "[[objects]]",
+            f"name = {json.dumps(p.name)}",
+            f"surface = {json.dumps(p.surface)}",
+            f"position = {arr(p.position)}",
+            f"quat = {arr(p.quat)}",
+        ]
+    path = Path(path)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
 def get_scenario(name_or_seed: str | int) -> Scenario:
     """``"paper-3"`` → Table 4 trial 3; ``17``, ``"17"`` or ``"seed-17"`` → ``generate(17)``;
-    ``"empty"`` → the house without objects (locomotion and navigation runs)."""
+    ``"empty"`` → the house without objects (locomotion and navigation runs); a path ending
+    in ``.toml`` → :func:`load_scenario_file`."""
     if isinstance(name_or_seed, int):
         return generate(name_or_seed)
     text = str(name_or_seed).strip()
+    if text.endswith(".toml"):
+        return load_scenario_file(text)
     if text == "empty":
         return Scenario(name="empty", seed=0, objects=())
     m = re.fullmatch(r"paper-(\d+)", text)
@@ -286,4 +383,6 @@ def get_scenario(name_or_seed: str | int) -> Scenario:
     m = re.fullmatch(r"(?:seed-)?(\d+)", text)
     if m:
         return generate(int(m.group(1)))
-    raise KeyError(f"unknown scenario {name_or_seed!r} (use paper-1..5, a seed or 'empty')")
+    raise KeyError(
+        f"unknown scenario {name_or_seed!r} (use paper-1..5, a seed, 'empty' or a .toml file)"
+    )

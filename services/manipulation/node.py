@@ -147,7 +147,10 @@ class ManipulationNode(Service):
         if isinstance(goal, m.PlaceGoal):
             if not self.monitor.holding:
                 raise GraspRejected("not_holding", "the gripper holds nothing to place")
-            plan = plan_place(self.geom, cfg, goal.position, obs.q_arm, self.hang, self.body)
+            yaw = float(goal.yaw) if goal.turn else None
+            plan = plan_place(
+                self.geom, cfg, goal.position, obs.q_arm, self.hang, self.body, yaw=yaw
+            )
             return PlacePrimitive(self.geom, cfg, plan, **kw)
         if isinstance(goal, m.DrawerGoal):
             plan = plan_drawer(

@@ -173,12 +173,16 @@ def build_world(
 ) -> World:
     """Compile the house with the scenario's objects (and the robot unless ``robot=False``).
 
-    Objects start at their scenario placements; a scenario of ``None`` gives the empty house.
+    Objects start at their scenario placements, the robot at the scenario's ``robot_start``
+    (else the house's); a scenario of ``None`` gives the empty house.
     """
     house = house or load_house()
     catalogue = catalogue or load_catalogue()
     x, y = house.robot_start.position
     yaw = math.radians(house.robot_start.yaw)
+    if scenario is not None and scenario.robot_start is not None:
+        x, y, yaw_deg = scenario.robot_start
+        yaw = math.radians(yaw_deg)
     key_name, robot_qpos = (None, {})
     if robot:
         key_name, robot_qpos = _start_keyframe(house)

@@ -403,6 +403,9 @@ def _add_cabinet(spec: mujoco.MjSpec, cab: Cabinet, layout: dict) -> None:
         _add_drawer(body, cab, dr, layout)
 
 
+DRAWER_FRONT_THICKNESS = 0.018  # m, a drawer's front panel
+
+
 def _add_drawer(cab_body: mujoco.MjsBody, cab: Cabinet, dr: Drawer, layout: dict) -> None:
     """A drawer: open box behind a front panel, on a damped limited slide along cabinet +x.
 
@@ -421,7 +424,7 @@ def _add_drawer(cab_body: mujoco.MjsBody, cab: Cabinet, dr: Drawer, layout: dict
         frictionloss=cab.frictionloss,
         armature=0.01,
     )
-    t_front, t = 0.018, 0.01
+    t_front, t = DRAWER_FRONT_THICKNESS, 0.01
     depth, width, height = cab.drawer_depth, dr.width, dr.height
     side_h = 0.75 * height
     rgba = cab.rgba

@@ -21,7 +21,8 @@ from quadmanip.services.locomotion.controller import (
     LocomotionController,
     load_locomotion_config,
 )
-from quadmanip.services.locomotion.sim_plant import SimPlant, controller_step
+
+from quadmanip.harness.locomotion_plant import SimPlant, controller_step
 
 pytestmark = pytest.mark.unit
 

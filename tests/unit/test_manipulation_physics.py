@@ -2,7 +2,7 @@
 
 The scene is the robot description on a floor with table slabs and deposit containers of
 the house's sizes (or the house itself for the drawers). The legs are held by the sim's
-actuator layer at standing targets (test stand-in for locomotion, see sim_harness.py);
+actuator layer at standing targets (test stand-in for locomotion, see quadmanip/harness/manipulation_scenes.py);
 grasp poses come from ground truth (stand-in for perception). Everything else - arm,
 gripper, objects - moves only through the actuator layer's torques and contacts.
 """
@@ -19,7 +19,9 @@ from quadmanip.services.manipulation.grasp import GraspPrimitive, plan_grasp
 from quadmanip.services.manipulation.place import PlacePrimitive, plan_place
 from quadmanip.services.manipulation.postures import resolve_postures
 from quadmanip.services.manipulation.primitive import PostureMove, Status
-from quadmanip.services.manipulation.sim_harness import (
+from quadmanip.sim.world.objects import load_catalogue
+
+from quadmanip.harness.manipulation_scenes import (
     TABLE_HEIGHT,
     PlacedObject,
     SimHarness,
@@ -32,7 +34,6 @@ from quadmanip.services.manipulation.sim_harness import (
     in_region,
     table_boxes,
 )
-from quadmanip.sim.world.objects import load_catalogue
 
 pytestmark = pytest.mark.unit
 

@@ -11,7 +11,8 @@ from quadmanip.services.manipulation.grasp import GraspPrimitive, GraspRejected,
 from quadmanip.services.manipulation.place import plan_place
 from quadmanip.services.manipulation.postures import resolve_postures
 from quadmanip.services.manipulation.primitive import ArmCommand, Status
-from quadmanip.services.manipulation.sim_harness import PlacedObject, SimHarness
+
+from quadmanip.harness.manipulation_scenes import PlacedObject, SimHarness
 
 pytestmark = pytest.mark.unit
 

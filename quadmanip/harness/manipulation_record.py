@@ -1,7 +1,7 @@
 """PNG sequences of a floor grasp, a table grasp, a place and a drawer opening.
 
-``python -m quadmanip.services.manipulation.record OUT_DIR`` renders the in-process physics
-runs of the tests (``sim_harness.py``) from a fixed side camera, one frame every
+``python -m quadmanip.harness.manipulation_record OUT_DIR`` renders the in-process physics
+runs of the tests (``quadmanip/harness/manipulation_scenes.py``) from a fixed side camera, one frame every
 ``--period`` sim seconds, plus a contact sheet per run. Evidence for reviewers; not used
 by the service.
 """
@@ -13,13 +13,8 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
-from quadmanip.services.manipulation.arm_kinematics import ArmGeometry
-from quadmanip.services.manipulation.config import ManipulationConfig, load_manipulation_config
-from quadmanip.services.manipulation.drawer import DrawerPrimitive, plan_drawer
-from quadmanip.services.manipulation.grasp import GraspPrimitive, plan_grasp
-from quadmanip.services.manipulation.place import PlacePrimitive, plan_place
-from quadmanip.services.manipulation.primitive import Primitive
-from quadmanip.services.manipulation.sim_harness import (
+
+from quadmanip.harness.manipulation_scenes import (
     TABLE_HEIGHT,
     PlacedObject,
     SimHarness,
@@ -29,6 +24,12 @@ from quadmanip.services.manipulation.sim_harness import (
     grasp_from_ground_truth,
     table_boxes,
 )
+from quadmanip.services.manipulation.arm_kinematics import ArmGeometry
+from quadmanip.services.manipulation.config import ManipulationConfig, load_manipulation_config
+from quadmanip.services.manipulation.drawer import DrawerPrimitive, plan_drawer
+from quadmanip.services.manipulation.grasp import GraspPrimitive, plan_grasp
+from quadmanip.services.manipulation.place import PlacePrimitive, plan_place
+from quadmanip.services.manipulation.primitive import Primitive
 
 __all__ = ["main"]
 
@@ -89,7 +90,7 @@ class _Recorder:
 
 def main(argv: list[str] | None = None) -> int:
     """Renders the four runs into ``OUT_DIR/<run>/``."""
-    ap = argparse.ArgumentParser(prog="python -m quadmanip.services.manipulation.record")
+    ap = argparse.ArgumentParser(prog="python -m quadmanip.harness.manipulation_record")
     ap.add_argument("out", type=Path)
     ap.add_argument("--period", type=float, default=0.25)
     ap.add_argument("--docs", type=Path, help="also write one compact sheet per run here")

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
+
 from quadmanip.common import robot_description as rd
 from quadmanip.services.manipulation.gravity import GravityCompensator
 from quadmanip.services.manipulation.primitive import (
@@ -517,7 +518,7 @@ def grasp_from_poses(
         pt[2] = max(surface_z + 0.021, top - 0.03)
         return GraspSpec(world_to_base(pt), "vertical", yaw - base_yaw, float(width))
     # horizontal: extent across the body's y axis (a round object's diameter)
-    ext = np.abs(rot) @ (0.5 * np.asarray(spec.size))
+    ext = np.abs(base_rot.T @ rot) @ (0.5 * np.asarray(spec.size))  # in the base frame
     if spec.shape in ("cylinder", "sphere"):
         ext[1] = 0.5 * spec.size[0]
     pt = p.copy()

@@ -1,0 +1,330 @@
+"""The full stack for one trial: a private router and the sim, locomotion and manipulation
+services as separate processes, plus the harness's view of it over Zenoh.
+
+``StackRun`` starts ``quadmanip router`` and ``quadmanip service sim|locomotion|manipulation``
+through :class:`quadmanip.launcher.Launcher` (the sim in lockstep with a scenario file, the
+cameras and LiDAR off because nothing here looks at them), waits until the robot stands,
+and gives the harness what a later navigation and perception service will give the task:
+walking on ground truth (velocity commands to locomotion) and ground-truth poses. The
+manipulation service does everything else through its actions. Success is judged from
+ground truth (``sim/gt/**``), never from a service's own claim.
+
+TEST AND BENCHMARK HARNESS ONLY: it reads ground truth.
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, TextIO
+
+import mujoco
+import numpy as np
+
+from quadmanip.common import messages as m
+from quadmanip.common.bus import Bus, BusConfig
+from quadmanip.launcher import Launcher, free_endpoint
+from quadmanip.sim.scenarios import Scenario, save_scenario_file
+
+__all__ = ["ActionOutcome", "StackError", "StackRun", "rot", "wrap"]
+
+SERVICES = ("sim", "locomotion", "manipulation")
+QUIET_SIM = (
+    "--set", "sensors.front_camera.rate=0", "--set", "sensors.gripper_camera.rate=0",
+    "--set", "sensors.lidar.rate=0", "--set", "ground_truth.contacts_rate=0",
+)  # fmt: skip
+STAND_HEIGHT_M = 0.25  # base height above which the robot counts as standing
+
+
+class StackError(RuntimeError):
+    """The stack did not come up or stopped answering (the message carries its logs)."""
+
+
+def wrap(a: float) -> float:
+    """Angle wrapped to [-pi, pi)."""
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+def rot(q: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a (w, x, y, z) quaternion."""
+    r = np.zeros(9)
+    mujoco.mju_quat2Mat(r, np.asarray(q, dtype=float))
+    return r.reshape(3, 3)
+
+
+class ActionOutcome:
+    """What one manipulation action did: accepted, its final status and reason, sim times."""
+
+    def __init__(
+        self,
+        accepted: bool,
+        status: str,
+        reason: str,
+        t_goal: float,
+        t_end: float,
+        feedback: Sequence[m.ActionFeedback] = (),
+    ) -> None:
+        self.accepted = accepted
+        self.status = status
+        self.reason = reason
+        self.t_goal = t_goal
+        self.t_end = t_end
+        self.feedback = list(feedback)
+
+    def stage_time(self, prefix: str) -> float | None:
+        """Sim time of the first feedback whose text starts with ``prefix`` (None: none)."""
+        return next((float(f.stamp) for f in self.feedback if f.text.startswith(prefix)), None)
+
+    @property
+    def ok(self) -> bool:
+        return self.accepted and self.status == "succeeded"
+
+    @property
+    def duration(self) -> float:
+        return self.t_end - self.t_goal
+
+    def __repr__(self) -> str:
+        return f"ActionOutcome({self.status!r}, {self.reason!r}, {self.duration:.1f} s)"
+
+
+class StackRun:
+    """Context manager: the three services on a private router for ``scenario``.
+
+    ``log`` receives every child's output, prefixed by its name. ``extra_args`` adds
+    command-line arguments per service (e.g. ``{"sim": ["--set", "..."]}``).
+    """
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        log: TextIO,
+        extra_args: dict[str, Sequence[str]] | None = None,
+        stand_timeout_s: float = 120.0,
+    ) -> None:
+        self.scenario = scenario
+        self.log = log
+        self.extra_args = {k: list(v) for k, v in (extra_args or {}).items()}
+        self.stand_timeout_s = stand_timeout_s
+        self._tmp: tempfile.TemporaryDirectory[str] | None = None
+        self.launcher: Launcher | None = None
+        self.bus: Bus | None = None
+        self.t_wall = time.monotonic()
+
+    # ------------------------------------------------------------------ lifecycle
+    def __enter__(self) -> StackRun:
+        self._tmp = tempfile.TemporaryDirectory(prefix="qm-stack-")
+        scn = save_scenario_file(self.scenario, Path(self._tmp.name) / "scenario.toml")
+        args = {
+            "sim": ["--lockstep", "--scenario", str(scn), *QUIET_SIM],
+            "locomotion": ["--set", "node.start_mode=stand"],
+            "manipulation": [],
+        }
+        for k, v in self.extra_args.items():
+            args[k] = args.get(k, []) + v
+        endpoint = free_endpoint()
+        self.launcher = Launcher(
+            listen=endpoint, services=SERVICES, service_args=args, out=self.log
+        )
+        try:
+            self.launcher.start()
+            self.bus = Bus(
+                BusConfig(
+                    mode="peer",
+                    connect=(self.launcher.connect or endpoint,),
+                    listen=("tcp/127.0.0.1:0",),
+                    env_override=False,
+                )
+            )
+            self._wire()
+            self._wait_standing()
+        except BaseException:
+            self.__exit__(None, None, None)
+            raise
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.bus is not None:
+            self.bus.close()
+            self.bus = None
+        if self.launcher is not None:
+            self.launcher.stop()
+            self.launcher = None
+        if self._tmp is not None:
+            self._tmp.cleanup()
+            self._tmp = None
+
+    def _wire(self) -> None:
+        bus = self.bus
+        assert bus is not None
+        self.objs = bus.latest("sim/gt/objects", m.GroundTruthPoses)
+        self.base = bus.latest("sim/gt/base", m.GroundTruthPoses)
+        self.drawers = bus.latest("sim/gt/drawers", m.GroundTruthPoses)
+        self.judge = bus.latest("sim/gt/judge", m.JudgeReport)
+        self.clock = bus.latest("sim/clock", m.Clock)
+        self.vel = bus.publisher("locomotion/cmd_vel", m.BodyVelocityCommand)
+        self.actions = {
+            n: bus.action_client("manipulation", n)
+            for n in ("grasp", "place", "open_drawer", "move_to_posture")
+        }
+
+    def _check_alive(self) -> None:
+        assert self.launcher is not None
+        dead = self.launcher.dead_child()
+        if dead is not None:
+            raise StackError(
+                f"{dead.name} exited (code {dead.proc.returncode if dead.proc else '?'})"
+            )
+
+    def _wait_standing(self) -> None:
+        assert self.bus is not None
+        deadline = time.monotonic() + self.stand_timeout_s
+        while "manipulation" not in self.bus.alive_services(0.5) or self.base.get() is None:
+            self._check_alive()
+            if time.monotonic() > deadline:
+                raise StackError("the services did not come up")
+            time.sleep(0.1)
+        while self.pose("base")[0][2] < STAND_HEIGHT_M:
+            self._check_alive()
+            if time.monotonic() > deadline:
+                raise StackError("the robot did not stand up")
+            time.sleep(0.1)
+        self.wait_sim(self.now() + 1.0)
+
+    # ------------------------------------------------------------------ ground truth
+    def now(self) -> float:
+        """Sim time of the newest clock message (-1 before the first)."""
+        c = self.clock.get()
+        return -1.0 if c is None else float(c.stamp)
+
+    def wait_sim(self, t: float, timeout_s: float = 120.0) -> None:
+        """Block until sim time reaches ``t``."""
+        deadline = time.monotonic() + timeout_s
+        while self.now() < t:
+            self._check_alive()
+            if time.monotonic() > deadline:
+                raise StackError(f"sim stuck before t={t:.2f}")
+            time.sleep(0.02)
+
+    def pose(self, name: str, cache: Any = None) -> tuple[np.ndarray, np.ndarray]:
+        """GROUND TRUTH world position and quaternion of ``base``, an object or a drawer
+        handle (``cache=self.drawers``)."""
+        msg = (cache or (self.base if name == "base" else self.objs)).get()
+        if msg is None:
+            raise StackError("no ground truth yet")
+        i = list(msg.names).index(name)
+        return np.asarray(msg.positions[i], dtype=float), np.asarray(msg.orientations[i])
+
+    def base_frame(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """Base position, rotation and yaw (ground truth)."""
+        p, q = self.pose("base")
+        r = rot(q)
+        return p, r, math.atan2(r[1, 0], r[0, 0])
+
+    def to_base(self, p_world: np.ndarray) -> np.ndarray:
+        """A world point in the base frame."""
+        bp, br, _ = self.base_frame()
+        return br.T @ (np.asarray(p_world, dtype=float) - bp)
+
+    def min_height(self, name: str, seconds: float) -> float:
+        """Lowest true height of object ``name`` over the next ``seconds`` of sim time."""
+        t = self.now()
+        low = math.inf
+        while self.now() < t + seconds:
+            self._check_alive()
+            low = min(low, float(self.pose(name)[0][2]))
+            time.sleep(0.05)
+        return low
+
+    def in_place(self, name: str, within_s: float = 4.0) -> bool:
+        """The sim judge's verdict on ``name`` (inside its category's place and at rest):
+        True at the first report within ``within_s`` of sim time that says so."""
+        t_end = self.now() + within_s
+        seen = -1.0
+        while True:
+            r = self.judge.get()
+            if r is not None and r.stamp > seen:
+                seen = float(r.stamp)
+                if name in r.in_place:
+                    return True
+                if seen >= t_end:
+                    return False
+            self.wait_sim(self.now() + 0.05)
+
+    # ------------------------------------------------------------------ navigation stand-in
+    def stop(self) -> None:
+        """Zero velocity, then 1.5 s for the gait to settle."""
+        for _ in range(10):
+            self.vel.publish(m.BodyVelocityCommand(stamp=self.now(), vx=0.0, vy=0.0, wz=0.0))
+            time.sleep(0.02)
+        self.wait_sim(self.now() + 1.5)
+
+    def walk(
+        self,
+        waypoints: Sequence[tuple[float, float, float]],
+        tol: float = 0.03,
+        sim_timeout: float = 40.0,
+    ) -> None:
+        """Drive through (x, y, yaw) waypoints on ground truth; the last one to within
+        ``tol`` and 0.05 rad, the others to within 15 cm."""
+        t_end = self.now() + sim_timeout
+        for k, (gx, gy, gyaw) in enumerate(waypoints):
+            last = k == len(waypoints) - 1
+            while True:
+                bp, _, yaw = self.base_frame()
+                dx, dy = gx - bp[0], gy - bp[1]
+                ex = math.cos(yaw) * dx + math.sin(yaw) * dy
+                ey = -math.sin(yaw) * dx + math.cos(yaw) * dy
+                dist = math.hypot(dx, dy)
+                eyaw = wrap(gyaw - yaw)
+                if (last and dist < tol and abs(eyaw) < 0.05) or (not last and dist < 0.15):
+                    break
+                self._check_alive()
+                if self.now() > t_end:
+                    raise StackError(f"walk to ({gx:.2f}, {gy:.2f}) stuck at {bp[:2].round(3)}")
+                if dist > 0.35:  # face the waypoint and walk
+                    eh = wrap(math.atan2(dy, dx) - yaw)
+                    wz = float(np.clip(1.5 * eh, -0.8, 0.8))
+                    vx = float(np.clip(0.8 * ex, 0.0, 0.4)) if abs(eh) < 0.4 else 0.0
+                    vy = float(np.clip(1.0 * ey, -0.1, 0.1))
+                else:  # close: holonomic, final heading
+                    wz = float(np.clip(1.5 * eyaw, -0.6, 0.6))
+                    vx = float(np.clip(1.0 * ex, -0.25, 0.25))
+                    vy = float(np.clip(1.0 * ey, -0.15, 0.15))
+                self.vel.publish(m.BodyVelocityCommand(stamp=self.now(), vx=vx, vy=vy, wz=wz))
+                time.sleep(0.05)
+        self.stop()
+
+    def face(
+        self, target_xy: Sequence[float], heading: float, standoff: float, tol: float = 0.03
+    ) -> None:
+        """Walk so that ``target_xy`` lies ``standoff`` ahead on the body axis, at ``heading``."""
+        gx = target_xy[0] - standoff * math.cos(heading)
+        gy = target_xy[1] - standoff * math.sin(heading)
+        self.walk([(gx, gy, heading)], tol)
+
+    # ------------------------------------------------------------------ actions
+    def act(self, action: str, goal: m.Message, timeout_s: float = 300.0) -> ActionOutcome:
+        """Send ``goal`` to manipulation action ``action`` and wait for its result."""
+        t0 = self.now()
+        h = self.actions[action].send_goal(goal, timeout=5.0)
+        if not h.accepted:
+            return ActionOutcome(False, "rejected", h.reason, t0, self.now())
+        deadline = time.monotonic() + timeout_s
+        res = None
+        while res is None:
+            self._check_alive()
+            if time.monotonic() > deadline:
+                raise StackError(f"{action}: no result after {timeout_s:.0f} s")
+            res = h.result(timeout=0.5)
+        return ActionOutcome(True, res.status, res.reason, t0, self.now(), h.feedback)
+
+    def posture(self, name: str) -> ActionOutcome:
+        """``move_to_posture``: stow, carry, floor_search, ..."""
+        return self.act("move_to_posture", m.PostureGoal(stamp=self.now(), posture=name))
+
+    def elapsed(self) -> str:
+        """Sim and wall time since the stack was created, for progress lines."""
+        return f"sim {self.now():.1f} s, wall {time.monotonic() - self.t_wall:.0f} s"
