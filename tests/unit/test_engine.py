@@ -250,3 +250,20 @@ def test_sensor_schedule_and_outputs(world):
     j = outs[-1].judge
     assert j.total == len(eng.object_names) and j.trial_time == pytest.approx(1.0)
     eng.close()
+
+
+def test_drawer_handle_ground_truth_comes_with_the_poses(world):
+    eng = _engine(world)
+    out = eng.observe()
+    while out.gt_drawers is None:
+        out = eng.step_tick(_hold(eng, out.tick))
+    assert out.gt_poses is not None and out.gt_drawers.stamp == out.gt_poses.stamp
+    gt = out.gt_drawers
+    assert sorted(gt.names) == ["left", "right", "top"]
+    for name, pos in zip(gt.names, gt.positions, strict=True):
+        handle = eng.data.body(world.drawer_handles[name])
+        assert pos == pytest.approx(handle.xpos)
+    # the cabinet faces west (house.toml yaw 180): the left drawer is the northern one
+    y = dict(zip(gt.names, gt.positions[:, 1], strict=True))
+    assert y["left"] > y["top"] > y["right"]
+    eng.close()

@@ -157,3 +157,60 @@ def test_any_seed_gives_spaced_objects_on_their_surfaces(seed):
         ra, rb = cat.objects[a.name].footprint_radius, cat.objects[b.name].footprint_radius
         gap = math.dist(a.position[:2], b.position[:2]) - ra - rb
         assert gap >= CLEARANCE - 1e-9, (a.name, b.name, gap)
+
+
+# ------------------------------------------------------------------ scenario files
+def test_scenario_file_round_trip_and_robot_start(tmp_path):
+    import dataclasses
+
+    from quadmanip.sim.scenarios import load_scenario_file, save_scenario_file
+
+    scn = dataclasses.replace(paper_scenario(2, verify=False), robot_start=(8.9, 1.4, 30.0))
+    path = save_scenario_file(scn, tmp_path / "kitchen.toml")
+    assert load_scenario_file(path) == scn
+    assert get_scenario(str(path)) == scn
+    world = build_world(scn)
+    adr = rd.free_joint_qpos_index(world.model)
+    q = world.initial_data().qpos
+    assert q[adr : adr + 2] == pytest.approx([8.9, 1.4])
+    assert 2 * math.atan2(q[adr + 6], q[adr + 3]) == pytest.approx(math.radians(30.0))
+
+
+def test_scenario_file_yaw_form(tmp_path):
+    from quadmanip.sim.scenarios import load_scenario_file
+
+    f = tmp_path / "one.toml"
+    f.write_text('[[objects]]\nname = "mug"\nposition = [2.0, 1.0, 0.042]\nyaw = 90.0\n')
+    scn = load_scenario_file(f)
+    assert scn.name == "one" and scn.robot_start is None
+    (p,) = scn.objects
+    assert p.surface == "floor"
+    assert p.quat == pytest.approx((math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5)))
+
+
+@pytest.mark.parametrize(
+    ("text", "why"),
+    [
+        ('[[objects]]\nname = "vase"\nposition = [1, 1, 0.1]\nyaw = 0', "unknown object 'vase'"),
+        ('[[objects]]\nname = "mug"\nposition = [1, 1]\nyaw = 0', "position: expected 3"),
+        ('[[objects]]\nname = "mug"\nposition = [1, 1, nan]\nyaw = 0', "finite"),
+        ('[[objects]]\nname = "mug"\nposition = [1, 1, 0.1]', "exactly one of quat or yaw"),
+        ('[[objects]]\nname = "mug"\nposition = [1, 1, 0.1]\nyaw = 0\ncolour = 1', "colour"),
+        ('[[objects]]\nname = "mug"\nposition = [1, 1, 0.1]\nquat = [0, 0, 0, 0]', "zero"),
+        (
+            '[[objects]]\nname = "mug"\nposition = [1, 1, 0.1]\nyaw = 0\n'
+            '[[objects]]\nname = "mug"\nposition = [2, 1, 0.1]\nyaw = 0',
+            "placed twice",
+        ),
+        ("robot_start = [1, 2]", "robot_start: expected 3"),
+        ("robots = 1", "unknown keys ['robots']"),
+        ("name = ", "scenario file"),
+    ],
+)
+def test_bad_scenario_files_say_what_is_wrong(tmp_path, text, why):
+    from quadmanip.sim.scenarios import load_scenario_file
+
+    f = tmp_path / "bad.toml"
+    f.write_text(text + "\n")
+    with pytest.raises(ValueError, match=why.replace("[", r"\[").replace("]", r"\]")):
+        load_scenario_file(f)
