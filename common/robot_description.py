@@ -19,7 +19,6 @@ from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
-
 from quadmanip.paths import CONFIG_DIR
 
 if TYPE_CHECKING:  # pinocchio is imported lazily: it is slow to import and only some need it

@@ -28,7 +28,6 @@ from pathlib import Path
 from typing import TextIO
 
 import numpy as np
-
 from quadmanip import services_registry
 from quadmanip.demo_operator import DemoOperator
 from quadmanip.launcher import Launcher, free_endpoint, install_stop_signals

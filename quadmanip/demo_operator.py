@@ -15,7 +15,6 @@ import threading
 from dataclasses import dataclass
 
 import numpy as np
-
 from quadmanip.common import messages as m
 
 

@@ -13,7 +13,6 @@ from types import SimpleNamespace
 
 import mujoco
 import numpy as np
-
 from quadmanip.common import messages as msg
 from quadmanip.common import robot_description as rd
 from quadmanip.sim.engine import PhysicsConfig, SimConfig, SimEngine

@@ -13,7 +13,6 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
-
 from quadmanip.harness.manipulation_scenes import (
     TABLE_HEIGHT,
     PlacedObject,

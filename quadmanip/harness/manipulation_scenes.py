@@ -25,7 +25,6 @@ from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
-
 from quadmanip.common import robot_description as rd
 from quadmanip.services.manipulation.gravity import GravityCompensator
 from quadmanip.services.manipulation.primitive import (

@@ -23,7 +23,6 @@ from typing import Any, TextIO
 
 import mujoco
 import numpy as np
-
 from quadmanip.common import messages as m
 from quadmanip.common.bus import Bus, BusConfig
 from quadmanip.launcher import Launcher, free_endpoint
@@ -37,6 +36,8 @@ QUIET_SIM = (
     "--set", "sensors.lidar.rate=0", "--set", "ground_truth.contacts_rate=0",
 )  # fmt: skip
 STAND_HEIGHT_M = 0.25  # base height above which the robot counts as standing
+LEVEL_DEG = 0.5  # ... and level once tilted less than this
+SETTLE_MAX_S = 4.0  # sim seconds to wait for that
 
 
 class StackError(RuntimeError):
@@ -192,6 +193,9 @@ class StackRun:
                 raise StackError("the robot did not stand up")
             time.sleep(0.1)
         self.wait_sim(self.now() + 1.0)
+        t_level = self.now() + SETTLE_MAX_S  # the stand-up's pitch transient dies out
+        while self.tilt_deg() > LEVEL_DEG and self.now() < t_level:
+            self.wait_sim(self.now() + 0.1)
 
     # ------------------------------------------------------------------ ground truth
     def now(self) -> float:
@@ -218,13 +222,27 @@ class StackRun:
         return np.asarray(msg.positions[i], dtype=float), np.asarray(msg.orientations[i])
 
     def base_frame(self) -> tuple[np.ndarray, np.ndarray, float]:
-        """Base position, rotation and yaw (ground truth)."""
+        """Base position, the rotation of the *level* body frame (the base's heading only)
+        and the heading, from ground truth.
+
+        Goals go to manipulation in this frame: the service plans for a level trunk (what
+        locomotion holds while the arm works), and the trunk's pitch at the moment a goal
+        is computed (a transient of 1-3 deg right after standing up) would otherwise move
+        a target 0.35 m ahead by 1-2 cm in height.
+        """
         p, q = self.pose("base")
         r = rot(q)
-        return p, r, math.atan2(r[1, 0], r[0, 0])
+        yaw = math.atan2(r[1, 0], r[0, 0])
+        c, s = math.cos(yaw), math.sin(yaw)
+        return p, np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]), yaw
+
+    def tilt_deg(self) -> float:
+        """The trunk's tilt from level (deg, ground truth)."""
+        r = rot(self.pose("base")[1])
+        return math.degrees(math.acos(float(np.clip(r[2, 2], -1.0, 1.0))))
 
     def to_base(self, p_world: np.ndarray) -> np.ndarray:
-        """A world point in the base frame."""
+        """A world point in the level body frame (see :meth:`base_frame`)."""
         bp, br, _ = self.base_frame()
         return br.T @ (np.asarray(p_world, dtype=float) - bp)
 

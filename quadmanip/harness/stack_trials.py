@@ -25,7 +25,6 @@ from collections.abc import Callable
 from typing import Any, TextIO
 
 import numpy as np
-
 from quadmanip.common import messages as m
 from quadmanip.harness.manipulation_scenes import GraspSpec, grasp_from_poses
 from quadmanip.harness.stack import StackError, StackRun, rot
@@ -52,7 +51,7 @@ AHEAD = (0.33, 0.40)  # object centre ahead of the base (m), uniform
 LATERAL = 0.04  # ... and beside the body axis, uniform +-
 TABLE_EDGE_AHEAD = 0.27  # the table edge this far ahead of the base (m)
 HANDLE_STANDOFF = 0.51  # base to a closed drawer's handle when opening it (m)
-PLACE_REACH = 0.47  # release point ahead of the base for containers (m)
+PLACE_REACH = 0.43  # release point ahead of the base for containers (m)
 RETRY_REASONS = ("too_close", "self_collision")  # a step back fixes these
 
 
@@ -195,6 +194,7 @@ def _grasp(
             s.face(world_of(gs)[:2], yaw, float(gs.position_base[0]) + 0.08)
             info["stepped_back"] = True
             gs = spec()
+        reasons = []
         for far in (False, True) if gs.tilt else (False,):
             g = spec(far) if far else gs
             out = s.act(
@@ -212,9 +212,10 @@ def _grasp(
             info["far_side"] = far
             if out.accepted:
                 return out, info
-        assert out is not None
-        if not any(r in out.reason for r in RETRY_REASONS):
+            reasons.append(out.reason)
+        if not any(r in why for r in RETRY_REASONS for why in reasons):
             break
+    assert out is not None
     return out, info
 
 
@@ -361,15 +362,23 @@ def run_place_trial(
             step = "walk"
             target, yaw = _place_target(s, house, cat, name, place)
             step = "place"
-            out = s.act(
-                "place",
-                m.PlaceGoal(
-                    stamp=s.now(),
-                    position=s.to_base(target),
-                    yaw=0.0 if yaw is None else yaw,
-                    turn=yaw is not None,
-                ),
-            )
+            for _ in range(3):  # a task steps closer (or back) when the arm cannot reach
+                out = s.act(
+                    "place",
+                    m.PlaceGoal(
+                        stamp=s.now(),
+                        position=s.to_base(target),
+                        yaw=0.0 if yaw is None else yaw,
+                        turn=yaw is not None,
+                    ),
+                )
+                step_m = 0.05 if "too_far" in out.reason else -0.05
+                if out.accepted or not any(r in out.reason for r in ("too_far", "too_close")):
+                    break
+                bp, _, heading = s.base_frame()
+                ahead = float(s.to_base(target)[0])
+                s.face(target[:2], heading, ahead - step_m, tol=0.015)
+                res["steps"] = res.get("steps", 0) + 1
             ok = s.in_place(name)
             end, _ = s.pose(name)
             res.update(

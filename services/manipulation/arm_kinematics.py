@@ -149,7 +149,6 @@ ARM_JOINTS: tuple[str, str, str, str] = ("arm_j1", "arm_j2", "arm_j3", "arm_j4")
 
 def _load_description_model():  # noqa: ANN202 - mujoco types are not exported statically
     import mujoco
-
     from quadmanip.paths import CONFIG_DIR
 
     return mujoco.MjModel.from_xml_path(str(CONFIG_DIR / "robot" / "quadmanip_dog.xml"))

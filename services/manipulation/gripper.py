@@ -11,9 +11,13 @@ to ~0. So after a close command, once the gap has settled:
   (a 3 mm cup wall) stalls before its force saturates;
 * ``EMPTY``: gap at or below ``empty_gap`` (fingers met), or no effort;
 
-and while carrying, ``LOST`` when the gap collapses by more than ``slip_gap`` from the
-width measured at grasp time or below ``empty_gap``, or the effort stays below
-``lost_min_effort`` for ``lost_debounce`` seconds.
+and while carrying, ``LOST`` when the gap closes to ``empty_gap`` (the fingers met: the
+object slid out) or the effort stays below ``lost_min_effort`` for ``lost_debounce``
+seconds. A gap that shrinks by more than ``slip_gap`` and settles again with the force
+still on is an object that turned or slid *within* the grip (a spoon pinched across its
+width rolling onto its 14 mm thickness while the robot walks): still ``HOLDING``, at the
+new width, counted in ``shifts``. Treating every such shift as lost made the task drop
+objects it was still carrying.
 """
 
 from __future__ import annotations
@@ -64,6 +68,7 @@ class GraspMonitor:
         self._last: tuple[float, float] | None = None
         self._settled_since: float | None = None
         self._weak_since: float | None = None
+        self.shifts = 0
 
     def command_open(self, t: float) -> tuple[float, float]:
         """Returns the ``(gap, max_force)`` of an open command and resets detection."""
@@ -105,7 +110,7 @@ class GraspMonitor:
                     self.state = GripState.EMPTY
         elif self.state is GripState.HOLDING:
             assert self.grasp_gap is not None
-            if gap <= cfg.empty_gap or gap < self.grasp_gap - cfg.slip_gap:
+            if gap <= cfg.empty_gap:
                 self.state = GripState.LOST
             elif eff < cfg.lost_min_effort:
                 if self._weak_since is None:
@@ -114,6 +119,9 @@ class GraspMonitor:
                     self.state = GripState.LOST
             else:
                 self._weak_since = None
+                if gap < self.grasp_gap - cfg.slip_gap and speed < cfg.settle_speed:
+                    self.grasp_gap = gap  # shifted in the grip, still squeezed
+                    self.shifts += 1
         return self.state
 
     @property

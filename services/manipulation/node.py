@@ -80,6 +80,7 @@ class ManipulationNode(Service):
         self.monitor = GraspMonitor(cfg.gripper)
         self.body = BodyPoseRequest()
         self.hang = DEFAULT_HANG
+        self._grip_state = self.monitor.state
         self.floor_z = -float(rd.home_qpos()[2])  # floor height in the body frame, standing
         self.pub_arm = self.publisher("sim/arm_trajectory")
         self.pub_grip = self.publisher("sim/gripper_command")
@@ -238,6 +239,14 @@ class ManipulationNode(Service):
         obs = self._observation()
         if obs is None:
             return
+        if self.monitor.state is not self._grip_state:  # log every grip verdict once
+            self._grip_state = self.monitor.state
+            self.log.info(
+                "grip",
+                state=self._grip_state.value,
+                gap=round(obs.gripper_gap, 4),
+                effort=round(obs.gripper_effort, 2),
+            )
         if prim is None or prim.done:
             # keep watching the grip while carrying between actions (holding -> lost)
             self.monitor.update(obs.t, obs.gripper_gap, obs.gripper_effort)

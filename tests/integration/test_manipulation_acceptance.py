@@ -15,9 +15,8 @@ from __future__ import annotations
 import io
 
 import pytest
-from quadmanip.sim.world.objects import load_catalogue
-
 from quadmanip.harness import stack_trials
+from quadmanip.sim.world.objects import load_catalogue
 
 pytestmark = pytest.mark.integration
 

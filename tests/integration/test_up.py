@@ -11,9 +11,8 @@ import time
 
 import psutil
 import pytest
-from quadmanip.common.bus import Bus, BusConfig
-
 from quadmanip import services_registry
+from quadmanip.common.bus import Bus, BusConfig
 from quadmanip.launcher import free_endpoint
 
 pytestmark = pytest.mark.integration

@@ -10,10 +10,9 @@ import textwrap
 from pathlib import Path
 
 import pytest
+from quadmanip import cli, launcher, services_registry
 from quadmanip.common import keys
 from quadmanip.common.config import ConfigError
-
-from quadmanip import cli, launcher, services_registry
 
 pytestmark = pytest.mark.unit
 

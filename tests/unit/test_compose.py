@@ -6,7 +6,6 @@ from pathlib import Path
 
 import pytest
 import yaml
-
 from quadmanip import services_registry
 from quadmanip.cli import build_parser
 

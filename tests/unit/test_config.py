@@ -15,7 +15,6 @@ from quadmanip.common.config import (
     load_config,
     to_dict,
 )
-
 from quadmanip.paths import CONFIG_DIR
 
 pytestmark = pytest.mark.unit

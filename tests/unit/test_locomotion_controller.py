@@ -16,13 +16,12 @@ import mujoco
 import numpy as np
 import pytest
 from quadmanip.common import robot_description as rd
+from quadmanip.harness.locomotion_plant import SimPlant, controller_step
 from quadmanip.services.locomotion.controller import (
     CommandError,
     LocomotionController,
     load_locomotion_config,
 )
-
-from quadmanip.harness.locomotion_plant import SimPlant, controller_step
 
 pytestmark = pytest.mark.unit
 

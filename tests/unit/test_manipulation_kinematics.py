@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pinocchio as pin
 import pytest
+from quadmanip.paths import CONFIG_DIR
 from quadmanip.services.manipulation.arm_kinematics import (
     ArmGeometry,
     ArmTarget,
@@ -17,8 +18,6 @@ from quadmanip.services.manipulation.arm_kinematics import (
     solve_ik_pose,
     target_from_base_pose,
 )
-
-from quadmanip.paths import CONFIG_DIR
 
 pytestmark = pytest.mark.unit
 

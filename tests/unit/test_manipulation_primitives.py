@@ -4,6 +4,7 @@ import math
 
 import numpy as np
 import pytest
+from quadmanip.harness.manipulation_scenes import PlacedObject, SimHarness
 from quadmanip.services.manipulation.arm_kinematics import ArmGeometry, fk_tcp
 from quadmanip.services.manipulation.config import load_manipulation_config
 from quadmanip.services.manipulation.drawer import plan_drawer
@@ -11,8 +12,6 @@ from quadmanip.services.manipulation.grasp import GraspPrimitive, GraspRejected,
 from quadmanip.services.manipulation.place import plan_place
 from quadmanip.services.manipulation.postures import resolve_postures
 from quadmanip.services.manipulation.primitive import ArmCommand, Status
-
-from quadmanip.harness.manipulation_scenes import PlacedObject, SimHarness
 
 pytestmark = pytest.mark.unit
 
