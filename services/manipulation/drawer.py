@@ -45,8 +45,6 @@ LOW_Z = -0.12
 # pushed a bar held in the pads' front half (1.2 cm) off the fingertips.
 GRIP_BEHIND = 0.0
 RETREAT = 0.045
-# Re-aim at the handle when the trunk drifted more than this (m).
-DRIFT_TOL = 0.004
 
 
 def _min_pull_x(z: float) -> float:
@@ -194,17 +192,7 @@ class DrawerPrimitive(Primitive):
         self.stage("drawer: reach the handle", 0.35)
         yield from self.line_to(plan.grip)
         # the handle is fixed in the world: follow the trunk's unplanned drift (odometry)
-        for _ in range(3):
-            yield from self.wait(0.2)
-            d = self.body_drift()
-            obs = self._last_obs
-            assert obs is not None
-            here = fk_tcp(self.geom, obs.q_arm)
-            want = ArmTarget(plan.grip.x - d[0], plan.grip.z - d[2], here.pitch, here.roll)
-            if math.hypot(want.x - here.x, want.z - here.z) < DRIFT_TOL:
-                break
-            self.stage(f"drawer: follow body drift {d[0]:+.3f} m", 0.4)
-            yield from self.line_to(want)
+        yield from self.follow_drift(plan.grip, "drawer")
         self.stage("drawer: grip", 0.45)
         yield from self.close_gripper()
         if self.monitor.state is not GripState.HOLDING:

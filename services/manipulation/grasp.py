@@ -248,6 +248,9 @@ class GraspPrimitive(Primitive):
         if b != self.body:
             self.stage("grasp: shift the body forward (COM x)", 0.5)
             yield from self.move_body(b.x_offset, b.y_offset, b.z_offset)
+        # the object is fixed in the world: follow the trunk's unplanned drift (a crouch
+        # that stopped short lifts thin objects out of the pads)
+        yield from self.follow_drift(plan.reach, "grasp")
         self.stage("grasp: close", 0.6)
         yield from self.close_gripper()
         if self.monitor.state is not GripState.HOLDING:

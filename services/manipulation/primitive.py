@@ -41,6 +41,12 @@ __all__ = [
 ]
 
 
+# Re-aim the tool when the trunk drifted more than this from where it was asked to be (m),
+# after letting it settle this long (s).
+DRIFT_TOL_M = 0.004
+DRIFT_SETTLE_S = 0.2
+
+
 @dataclass(frozen=True)
 class Observation:
     """What the manipulation service measures each tick (joint encoders and gripper)."""
@@ -201,7 +207,7 @@ class Primitive:
         self.progress.log.append((t, text))
 
     # ------------------------------------------------------------- script helpers
-    def stage(self, text: str, value: float) -> None:
+    def stage(self, text: str, value: float | None) -> None:
         """Reports progress (0..1) and a human-readable stage name."""
         t = self._last_obs.t if self._last_obs is not None else 0.0
         self._note(t, text, value)
@@ -246,6 +252,25 @@ class Primitive:
                 z - z0 - (b.z_offset - b0.z_offset),
             ]
         )
+
+    def follow_drift(self, target: Any, label: str, tries: int = 3) -> Script:
+        """Re-aims the tool at ``target`` (an ``ArmTarget`` fixed in the world, e.g. a
+        drawer handle or a grasp point, planned for the body as requested) after the trunk's
+        unplanned drift: a crouch that stopped 1 cm short, the trunk backing off as the arm
+        reaches. Lateral drift cannot be fixed by this arm (it has no y); it stays."""
+        from quadmanip.services.manipulation.arm_kinematics import ArmTarget, fk_tcp
+
+        for _ in range(tries):
+            yield from self.wait(DRIFT_SETTLE_S)
+            d = self.body_drift()
+            obs = self._last_obs
+            assert obs is not None
+            here = fk_tcp(self.geom, obs.q_arm)
+            want = ArmTarget(target.x - d[0], target.z - d[2], here.pitch, here.roll)
+            if math.hypot(want.x - here.x, want.z - here.z) < DRIFT_TOL_M:
+                return
+            self.stage(f"{label}: follow body drift {d[0]:+.3f} / {d[2]:+.3f} m", None)
+            yield from self.line_to(want)
 
     def move_joints(self, q_goal: np.ndarray) -> Script:
         """Joint-space move from the measured joints to ``q_goal`` (limits enforced)."""
