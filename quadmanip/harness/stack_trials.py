@@ -18,10 +18,11 @@ trial gives the same scenario on every machine.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any, TextIO
 
 import numpy as np
@@ -219,8 +220,26 @@ def _grasp(
     return out, info
 
 
+@contextlib.contextmanager
+def _stack(scenario: Scenario, log: TextIO, film: Any = None) -> Iterator[StackRun]:
+    """A fresh stack for ``scenario``, filmed by ``film`` (a ``StackFilm``) if given."""
+    with StackRun(scenario, log) as s:
+        if film is not None:
+            film.start(s)
+        try:
+            yield s
+        finally:
+            if film is not None:
+                film.stop()
+
+
 def run_grasp_trial(
-    name: str, where: str, seed: int, log: TextIO, catalogue: Catalogue | None = None
+    name: str,
+    where: str,
+    seed: int,
+    log: TextIO,
+    catalogue: Catalogue | None = None,
+    film: Any = None,
 ) -> dict[str, Any]:
     """One grasp trial on a fresh stack: grasp, lift 10 cm, hold 3 s (ground-truth verdict)."""
     cat = catalogue or load_catalogue()
@@ -231,7 +250,7 @@ def run_grasp_trial(
     scn = grasp_scenario(name, where, seed, house, cat)
     t0 = time.monotonic()
     try:
-        with StackRun(scn, log) as s:
+        with _stack(scn, log, film) as s:
             z0 = float(s.pose(name)[0][2])
             out, info = _grasp(s, cat, name, surface_z, approach)
             res.update(info)
@@ -279,12 +298,12 @@ def _open_drawer(
     return out, opened, h0
 
 
-def run_drawer_trial(which: str, log: TextIO) -> dict[str, Any]:
+def run_drawer_trial(which: str, log: TextIO, film: Any = None) -> dict[str, Any]:
     """Open drawer ``which`` >= 15 cm on a fresh stack (ground-truth handle travel)."""
     res: dict[str, Any] = {"drawer": which}
     t0 = time.monotonic()
     try:
-        with StackRun(drawer_scenario(which), log) as s:
+        with _stack(drawer_scenario(which), log, film) as s:
             out, opened, _ = _open_drawer(s, which)
             res.update(
                 success=bool(out.ok and opened >= OPEN_M),
@@ -332,7 +351,11 @@ def _place_target(
 
 
 def run_place_trial(
-    name: str, seed: int, log: TextIO, catalogue: Catalogue | None = None
+    name: str,
+    seed: int,
+    log: TextIO,
+    catalogue: Catalogue | None = None,
+    film: Any = None,
 ) -> dict[str, Any]:
     """Grasp ``name`` from the floor, carry it, place it into its category's place."""
     cat = catalogue or load_catalogue()
@@ -342,7 +365,7 @@ def run_place_trial(
     t0 = time.monotonic()
     step = "start"
     try:
-        with StackRun(place_scenario(name, seed, house, cat), log) as s:
+        with _stack(place_scenario(name, seed, house, cat), log, film) as s:
             t_start = s.now()
             if place == "drawer":
                 step = "open_drawer"
