@@ -183,9 +183,13 @@ def _grasp(
         return bp + br @ g.position_base
 
     gs = spec()
-    if abs(gs.position_base[1]) > 0.05:  # off the body axis: stand in front of it
+    x, y = float(gs.position_base[0]), float(gs.position_base[1])
+    if abs(y) > 0.05 or x < AHEAD[0] - 0.02:
+        # off the body axis, or too near the trunk (standing up carries the robot ~3 cm
+        # forward; a cup's rim 27 cm ahead could be grasped but not lifted past the front
+        # legs): stand in front of it, the grasp point 33-40 cm ahead
         _, _, yaw = s.base_frame()
-        s.face(world_of(gs)[:2], yaw, float(np.clip(gs.position_base[0], *AHEAD)))
+        s.face(world_of(gs)[:2], yaw, float(np.clip(x, *AHEAD)))
         info["walked"] = True
         gs = spec()
     out = None
