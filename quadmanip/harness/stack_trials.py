@@ -323,15 +323,22 @@ def run_drawer_trial(which: str, log: TextIO, film: Any = None) -> dict[str, Any
 
 
 def _place_target(
-    s: StackRun, house: HouseConfig, cat: Catalogue, name: str, place: str
+    s: StackRun,
+    house: HouseConfig,
+    cat: Catalogue,
+    name: str,
+    place: str,
+    drawer: tuple[np.ndarray, float] | None = None,
 ) -> tuple[np.ndarray, float | None]:
-    """Walk to the deposit place; return the release point (world) and the gripper yaw."""
+    """Walk to the deposit place; return the release point (world) and the gripper yaw.
+    ``drawer``: the open top drawer's closed-handle position and opening (m)."""
     o = cat.objects[name]
     long_side = max(o.size[0], o.size[1])
     cont = _container(house, place)
     if cont is None:  # the open top drawer: release over the middle of its exposed mouth
         cab = house.cabinet
-        h0, opened = s.drawer_closed_handle, s.drawer_opened  # type: ignore[attr-defined]
+        assert drawer is not None, "open the drawer first"
+        h0, opened = drawer
         _, hq = s.pose("top", s.drawers)
         x_out = rot(hq)[:, 0]
         s.face(h0[:2], math.atan2(-x_out[1], -x_out[0]), HANDLE_STANDOFF, tol=0.012)
@@ -371,10 +378,11 @@ def run_place_trial(
     try:
         with _stack(place_scenario(name, seed, house, cat), log, film) as s:
             t_start = s.now()
+            drawer = None
             if place == "drawer":
                 step = "open_drawer"
                 out, opened, h0 = _open_drawer(s, "top")
-                s.drawer_opened, s.drawer_closed_handle = opened, h0  # type: ignore[attr-defined]
+                drawer = (h0, opened)
                 if not (out.ok and opened >= OPEN_M - 0.01):
                     raise _TrialFailed(step, f"{out.status} {out.reason} opened {opened:.3f}")
                 s.posture("stow")
@@ -387,7 +395,7 @@ def run_place_trial(
             step = "carry"
             s.posture("carry")
             step = "walk"
-            target, yaw = _place_target(s, house, cat, name, place)
+            target, yaw = _place_target(s, house, cat, name, place, drawer)
             step = "place"
             for _ in range(3):  # a task steps closer (or back) when the arm cannot reach
                 out = s.act(
@@ -402,7 +410,7 @@ def run_place_trial(
                 step_m = 0.05 if "too_far" in out.reason else -0.05
                 if out.accepted or not any(r in out.reason for r in ("too_far", "too_close")):
                     break
-                bp, _, heading = s.base_frame()
+                _, _, heading = s.base_frame()
                 ahead = float(s.to_base(target)[0])
                 s.face(target[:2], heading, ahead - step_m, tol=0.015)
                 res["steps"] = res.get("steps", 0) + 1
