@@ -33,6 +33,7 @@ format: $(STAMP)
 	$(VENV)/bin/ruff check --fix .
 
 # Every benchmark writes JSON to bench-results/ (numbers and commands: docs/benchmarks.md).
+# The manipulation matrix runs over the full stack, one fresh stack per trial: about an hour.
 # A benchmark whose module is not installed yet says so and the others still run.
 bench: $(STAMP)
 	mkdir -p bench-results

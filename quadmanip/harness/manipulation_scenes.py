@@ -463,6 +463,14 @@ def grasp_from_poses(
         axis = p + rot @ np.array([-0.5 * reach, 0.0, 0.0])
         r = 0.5 * spec.size[1] - 0.5 * v.wall
         lean = math.atan2(0.5 * (spec.size[1] - v.bottom_diameter), spec.size[2])
+        if spec.size[1] <= max_width and lean <= 0.35:
+            # narrow enough to close around (cup, mug): across the body, clear of a handle
+            # (the fingers close along the object's y, the handle sticks out along x),
+            # 3 cm below the rim. A pinch of the 3 mm rim missed one time in ten when the
+            # tool stood 3-4 mm off (the light cup tipped away from the first finger).
+            pt = axis.copy()
+            pt[2] = max(surface_z + 0.021, top - 0.03)
+            return GraspSpec(world_to_base(pt), "vertical", obj_yaw - base_yaw, spec.size[1])
         if not v.handle and lean > 0.35:
             # strongly flared, round (bowl): pinch the wall facing the robot (or the far
             # one, ``far_side``, when the near one is too close to the trunk) with the tool
@@ -493,7 +501,7 @@ def grasp_from_poses(
         assert best is not None
         _, pt, ang = best
         pt = pt.copy()
-        pt[2] = top - 0.012
+        pt[2] = top - RIM_DEPTH
         return GraspSpec(world_to_base(pt), "vertical", ang - math.pi / 2 - base_yaw, v.wall + 0.01)
     parts = object_parts(spec)
     if name in GRASP_HINTS:
@@ -559,6 +567,7 @@ def plan_grasp_from_ground_truth(
 
 
 # --------------------------------------------------------------------------- test scenes
+RIM_DEPTH = 0.012  # tool centre below a vessel rim (m)
 TABLE_HEIGHT = 0.40  # the house's tables (configs/house.toml)
 
 
