@@ -27,6 +27,9 @@ class MotionConfig:
     dt: float = 0.02
     linear_speed: float = 0.15
     angular_speed: float = 1.0
+    # Posture moves with an object in the gripper run at this share of v_max (a_max
+    # squared): a spoon pinched edge-on fell out of a full-speed move to ``carry``.
+    holding_speed_scale: float = 0.5
     # Elbow reference used when a posture or goal gives no current joints.
     elbow_ref: tuple[float, float, float, float] = (0.3, 1.2, 0.0, 0.0)
 

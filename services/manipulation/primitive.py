@@ -343,6 +343,10 @@ class PostureMove(Primitive):
     ) -> None:
         super().__init__(geom, cfg, **kw)
         self.q_goal = np.asarray(q_goal, dtype=float)
+        if self.monitor.holding:  # gentler with an object in the gripper
+            s = cfg.motion.holding_speed_scale
+            v, a = np.asarray(cfg.motion.v_max), np.asarray(cfg.motion.a_max)
+            self.limits = MotionLimits.build(geom, tuple(s * v), tuple(s * s * a))
 
     def script(self):  # noqa: ANN201 - generator type from Primitive
         """One synchronised quintic move."""
