@@ -52,7 +52,6 @@ AHEAD = (0.33, 0.40)  # object centre ahead of the base (m), uniform
 LATERAL = 0.04  # ... and beside the body axis, uniform +-
 TABLE_EDGE_AHEAD = 0.27  # the table edge this far ahead of the base (m)
 HANDLE_STANDOFF = 0.51  # base to a closed drawer's handle when opening it (m)
-DRAWER_RELEASE_ABOVE = 0.06  # release point over the drawer front's top (m)
 PLACE_REACH = 0.43  # release point ahead of the base for containers (m)
 RETRY_REASONS = ("too_close", "self_collision")  # a step back fixes these
 
@@ -348,9 +347,7 @@ def _place_target(
         body = h - x_out * cab.handle_offset  # the drawer's front face, handle height
         gap = opened - DRAWER_FRONT_THICKNESS - cab.panel  # free length of the mouth
         mouth = body - x_out * (DRAWER_FRONT_THICKNESS + 0.5 * gap)
-        # 6 cm over the front panel's top: lowering a long tool further stalled the arm
-        # (the tool met the cabinet's front edge), and the drawer catches the short drop
-        mouth[2] = h[2] - 0.6 * height + height + DRAWER_RELEASE_ABOVE
+        mouth[2] = h[2] - 0.6 * height + height  # the front panel's top
         return mouth, (math.pi / 2 if long_side > gap else None)
     heading = -math.pi / 2 if cont.on == "floor" else math.pi / 2
     inner_depth = cont.size[1] / 2 - cont.wall  # along the robot's heading (north/south)
