@@ -46,8 +46,11 @@ class _Sample:
 class StackFilm:
     """Samples a running :class:`StackRun` every ``period`` sim seconds; renders later."""
 
-    def __init__(self, scenario: Scenario, out: Path, period: float = 0.25) -> None:
+    def __init__(
+        self, scenario: Scenario, out: Path, period: float = 0.25, azimuth: float = 125.0
+    ) -> None:
         self.scenario = scenario
+        self.azimuth = azimuth  # camera bearing from the robot's heading (deg)
         self.out = out
         self.period = period
         self.samples: list[_Sample] = []
@@ -139,7 +142,7 @@ class StackFilm:
             r = rot(bq)
             yaw = float(np.degrees(np.arctan2(r[1, 0], r[0, 0])))
             cam.lookat[:] = bp + r @ np.array([0.35, 0.0, -0.12])
-            cam.azimuth = yaw + 125.0  # from the robot's front left
+            cam.azimuth = yaw + self.azimuth
             renderer.update_scene(data, cam)
             frames.append(renderer.render().copy())
         renderer.close()
@@ -174,6 +177,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("out", type=Path)
     ap.add_argument("--period", type=float, default=0.25, help="sim seconds between frames")
     ap.add_argument("--docs", type=Path, help="also write one small sheet per run here")
+    ap.add_argument(
+        "--runs", nargs="+", help="only these runs (floor_grasp table_grasp place drawer)"
+    )
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     log = (args.out / "stack.log").open("w")
@@ -199,8 +205,12 @@ def main(argv: list[str] | None = None) -> int:
             lambda film: st.run_drawer_trial("top", log, film=film),
         ),
     ]
+    # from the front left; by a wall (the cabinet, the floor boxes) from behind left instead
+    azimuth = {"drawer": 55.0, "place": 35.0}
     for name, scn, run in runs:
-        film = StackFilm(scn, args.out / name, args.period)
+        if args.runs and name not in args.runs:
+            continue
+        film = StackFilm(scn, args.out / name, args.period, azimuth.get(name, 125.0))
         result = run(film)
         n = film.save(None if args.docs is None else args.docs / f"{name}.png")
         print(f"{name}: {'ok' if result['success'] else 'FAILED'}, {n} frames")
