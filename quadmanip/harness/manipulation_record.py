@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -72,19 +73,22 @@ class _Recorder:
         return len(self.frames)
 
     def save_compact(self, path: Path) -> None:
-        """A small contact sheet for the docs: 8 frames evenly over the run, 320x240 each,
-        2 x 4, 256-colour PNG (~0.2-0.3 MB)."""
-        from PIL import Image
+        """A small contact sheet for the docs (see :func:`contact_sheet`)."""
+        if self.frames:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            contact_sheet(self.frames).quantize(256).save(path, optimize=True)
 
-        if not self.frames:
-            return
-        idx = np.linspace(0, len(self.frames) - 1, 8).round().astype(int)
-        tiles = [Image.fromarray(self.frames[i]).resize((320, 240)) for i in idx]
-        sheet = Image.new("RGB", (4 * 320, 2 * 240))
-        for k, tile in enumerate(tiles):
-            sheet.paste(tile, ((k % 4) * 320, (k // 4) * 240))
-        path.parent.mkdir(parents=True, exist_ok=True)
-        sheet.quantize(256).save(path, optimize=True)
+
+def contact_sheet(frames: list[np.ndarray]) -> Any:
+    """8 frames evenly over a run, 320x240 each, 2 x 4, as a PIL image."""
+    from PIL import Image
+
+    idx = np.linspace(0, len(frames) - 1, 8).round().astype(int)
+    tiles = [Image.fromarray(frames[i]).resize((320, 240)) for i in idx]
+    sheet = Image.new("RGB", (4 * 320, 2 * 240))
+    for k, tile in enumerate(tiles):
+        sheet.paste(tile, ((k % 4) * 320, (k // 4) * 240))
+    return sheet
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -24,6 +24,7 @@ import mujoco
 import numpy as np
 from quadmanip.common import messages as m
 from quadmanip.common import robot_description as rd
+from quadmanip.harness.manipulation_record import contact_sheet
 from quadmanip.harness.stack import StackRun, rot
 from quadmanip.sim.scenarios import Scenario
 from quadmanip.sim.world import build_world
@@ -157,11 +158,7 @@ class StackFilm:
         for i, img in enumerate(frames):
             Image.fromarray(img).save(self.out / f"frame_{i:03d}.png")
         if frames:
-            idx = np.linspace(0, len(frames) - 1, 8).round().astype(int)
-            tiles = [Image.fromarray(frames[i]).resize((320, 240)) for i in idx]
-            sheet = Image.new("RGB", (4 * 320, 2 * 240))
-            for k, tile in enumerate(tiles):
-                sheet.paste(tile, ((k % 4) * 320, (k // 4) * 240))
+            sheet = contact_sheet(frames)
             sheet.save(self.out / "sheet.png")
             if docs_sheet is not None:
                 docs_sheet.parent.mkdir(parents=True, exist_ok=True)

@@ -22,7 +22,7 @@ import contextlib
 import math
 import time
 import zlib
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from typing import Any, TextIO
 
 import numpy as np
@@ -438,6 +438,3 @@ class _TrialFailed(Exception):
     def __init__(self, step: str, why: str) -> None:
         super().__init__(f"{step}: {why}")
         self.step, self.why = step, why
-
-
-TrialFn = Callable[..., dict[str, Any]]
