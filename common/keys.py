@@ -100,6 +100,7 @@ _TABLE: tuple[Topic, ...] = (
     _t("locomotion", "cmd_vel", m.BodyVelocityCommand, "control", "in", "body velocity"),
     _t("locomotion", "body_pose", m.BodyPoseCommand, "control", "in", "body pose offsets"),
     _t("locomotion", "mode", m.LocomotionMode, "control", "in", "stand/sit/damp/walk"),
+    _t("locomotion", "payload", m.Payload, "control", "in", "mass in the gripper (manip.)"),
     _t("locomotion", "odometry", m.Odometry, "sensor", "out", "estimated base state (odom)"),
     _t("locomotion", "debug", m.LocomotionDebug, "sensor", "out", "gait, forces, MPC"),
 ) + tuple(

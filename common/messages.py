@@ -60,6 +60,7 @@ __all__ = [
     "Message",
     "MessageError",
     "Odometry",
+    "Payload",
     "PlaceGoal",
     "PostureGoal",
     "RgbdImage",
@@ -213,6 +214,21 @@ class BodyPoseCommand(Message):
     roll: float = 0.0
     pitch: float = 0.0
     yaw: float = 0.0
+
+
+@message("qm.Payload", (1, 0))
+class Payload(Message):
+    """What the gripper holds, for the balance controller's model: ``mass`` (kg, 0 = empty)
+    at the tool centre. Sent by manipulation when its grip verdict changes and once a
+    second while holding."""
+
+    stamp: float
+    mass: float = 0.0
+    object_name: str = ""
+
+    def _check(self) -> None:
+        if not (math.isfinite(self.mass) and 0.0 <= self.mass <= 10.0):
+            raise MessageError(f"Payload.mass must be in [0, 10] kg, got {self.mass}")
 
 
 @message("qm.LocomotionMode", (1, 0))
@@ -377,12 +393,14 @@ class PostureGoal(Message):
     duration: float = 0.0  # 0: let the planner choose from velocity limits
 
 
-@message("qm.GraspGoal", (1, 1))
+@message("qm.GraspGoal", (1, 2))
 class GraspGoal(Message):
     """Grasp an object at ``position`` (base frame) about ``yaw`` (rad, base frame);
     ``approach`` vertical (from above), horizontal, or auto; ``width`` is the object's
     width across the fingers (m); ``tilt`` (rad, vertical grasps) leans the tool forward so
-    the pads lie flat on a flared wall such as a bowl's (1.1: added, default 0)."""
+    the pads lie flat on a flared wall such as a bowl's (1.1: added, default 0); ``mass``
+    (kg) is the object's, from perception's catalogue, for the balance controller while it
+    is held (1.2: added; 0 = unknown, manipulation assumes its configured default)."""
 
     stamp: float
     position: np.ndarray = array("f8", (3,))
@@ -391,6 +409,11 @@ class GraspGoal(Message):
     width: float = 0.05
     object_name: str = ""
     tilt: float = 0.0
+    mass: float = 0.0
+
+    def _check(self) -> None:
+        if not (math.isfinite(self.mass) and self.mass >= 0.0):
+            raise MessageError(f"GraspGoal.mass must be finite and >= 0, got {self.mass}")
 
 
 @message("qm.PlaceGoal", (1, 1))

@@ -212,6 +212,7 @@ def _grasp(
                     width=g.width,
                     object_name=name,
                     tilt=g.tilt,
+                    mass=cat.objects[name].mass,  # perception knows the class: its mass
                 ),
             )
             info["far_side"] = far

@@ -65,7 +65,7 @@ class NodeOptions:
     """Settings of the Zenoh node only ([node] table)."""
 
     start_mode: str = "damp"  # mode at start: damp (wait for a command) or stand
-    held_object_mass: float = 0.5  # kg assumed while the gripper holds something
+    held_object_mass: float = 0.15  # kg assumed while squeezing, without locomotion/payload
     grip_effort_threshold: float = 2.0  # N of squeeze that means "holding"
     grip_min_gap: float = 0.005  # m, below this the fingers closed on nothing
     odometry_every: int = 1  # ticks between odometry messages

@@ -4,10 +4,12 @@ Every `sim/lowstate` (500 Hz; encoders + IMU) is answered at once with a `sim/le
 that echoes its tick (the sim's lockstep mode waits for it). Commands arrive on
 `locomotion/cmd_vel`, `locomotion/body_pose` and `locomotion/mode`; invalid ones are
 rejected with a logged reason and counted. Outputs: `locomotion/odometry` (every tick) and
-`locomotion/debug` (every MPC step). The held-object mass in the MPC comes from the gripper
-state in the LowState: fingers squeezing on something (effort above a threshold with a gap
-above a minimum) count as holding `held_object_mass` — a conservative estimate, since a
-real robot cannot weigh the object either.
+`locomotion/debug` (every MPC step). The held-object mass in the MPC (a point mass at the
+tool centre) is the one manipulation announces on `locomotion/payload` - the object's
+catalogue mass. Without any payload message (manipulation not running, teleoperation) the
+gripper state in the LowState decides: fingers squeezing on something count as holding
+`held_object_mass`. A wrong guess is not harmless: assuming 0.5 kg for a 0.1 kg screwdriver
+held 0.5 m ahead made the standing balance rock front/back and throw the trunk up 14 cm.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ class LocomotionNode(Service):
         Input("locomotion/cmd_vel", m.BodyVelocityCommand, doc="body velocity (base frame)"),
         Input("locomotion/body_pose", m.BodyPoseCommand, doc="body pose offsets (standing)"),
         Input("locomotion/mode", m.LocomotionMode, doc="stand/sit/damp/walk"),
+        Input("locomotion/payload", m.Payload, doc="mass held in the gripper"),
     )
     outputs = (
         Output("sim/leg_command", m.LegCommand, kind="control"),
@@ -60,6 +63,8 @@ class LocomotionNode(Service):
         if cfg.node.start_mode != "damp":
             self.ctl.set_mode(cfg.node.start_mode)
         self.subscribe("locomotion/mode", self._on_mode)
+        self._payload: m.Payload | None = None
+        self.subscribe("locomotion/payload", self._on_payload)
         self.subscribe("locomotion/cmd_vel", self._on_cmd_vel)
         self.subscribe("locomotion/body_pose", self._on_body_pose)
         self.subscribe("sim/lowstate", self._on_lowstate)
@@ -77,6 +82,11 @@ class LocomotionNode(Service):
                 self.log.info("mode", mode=msg.mode)
             except CommandError as exc:
                 self._reject("mode", exc)
+
+    def _on_payload(self, msg: m.Payload) -> None:
+        if self._payload is None or abs(msg.mass - self._payload.mass) > 1e-9:
+            self.log.info("payload", mass=round(float(msg.mass), 3), object=msg.object_name)
+        self._payload = msg
 
     def _on_cmd_vel(self, msg: m.BodyVelocityCommand) -> None:
         with self.lock:
@@ -113,7 +123,12 @@ class LocomotionNode(Service):
                     self.pub_cmd.publish(self._last_cmd)
                 return
             self._last_stamp = float(ls.stamp)
-            self.ctl.held_mass = held_mass_from_gripper(ls.joints, self.config.node)
+            payload = self._payload
+            self.ctl.held_mass = (
+                held_mass_from_gripper(ls.joints, self.config.node)
+                if payload is None
+                else float(payload.mass)
+            )
             out = self.ctl.step(
                 ls.stamp,
                 ls.joints.q,

@@ -44,6 +44,9 @@ class GripperConfig:
     lost_min_effort: float = 1.0
     slip_gap: float = 0.006
     lost_debounce: float = 0.1
+    # kg announced to locomotion for a held object whose mass the grasp goal left unknown
+    # (about the catalogue's mean object, 0.16 kg)
+    default_payload_mass: float = 0.15
 
 
 class GripState(StrEnum):

@@ -32,7 +32,7 @@ from quadmanip.services.manipulation.config import ManipulationConfig
 from quadmanip.services.manipulation.drawer import DrawerPrimitive, plan_drawer
 from quadmanip.services.manipulation.grasp import GraspPrimitive, GraspRejected, plan_grasp
 from quadmanip.services.manipulation.gravity import GravityCompensator
-from quadmanip.services.manipulation.gripper import GraspMonitor
+from quadmanip.services.manipulation.gripper import GraspMonitor, GripState
 from quadmanip.services.manipulation.place import PlacePrimitive, plan_place
 from quadmanip.services.manipulation.postures import resolve_postures
 from quadmanip.services.manipulation.primitive import (
@@ -50,6 +50,7 @@ from quadmanip.services.manipulation.trajectory import TrajectoryError
 __all__ = ["ManipulationNode", "main"]
 
 DEFAULT_HANG = 0.05
+PAYLOAD_PERIOD_S = 1.0  # repeat the payload this often while holding
 ARM = slice(12, 16)
 ODOM_MAX_AGE = 0.5  # s: older odometry is not used for the body-drift correction
 
@@ -67,6 +68,7 @@ class ManipulationNode(Service):
         Output("sim/arm_trajectory", m.ArmTrajectory, doc="time-stamped arm trajectory"),
         Output("sim/gripper_command", m.GripperCommand, doc="finger gap + force limit"),
         Output("locomotion/body_pose", m.BodyPoseCommand, doc="moveCOM / crouch requests"),
+        Output("locomotion/payload", m.Payload, doc="mass held in the gripper"),
     )
     actions = ("move_to_posture", "grasp", "place", "open_drawer")
     loop_period = 0.005
@@ -85,6 +87,9 @@ class ManipulationNode(Service):
         self.pub_arm = self.publisher("sim/arm_trajectory")
         self.pub_grip = self.publisher("sim/gripper_command")
         self.pub_body = self.publisher("locomotion/body_pose")
+        self.pub_payload = self.publisher("locomotion/payload")
+        self.payload = m.Payload(stamp=0.0)  # what locomotion is told the gripper holds
+        self._grasp_payload = m.Payload(stamp=0.0)  # the current grasp goal's object
         self.state_cache = self.latest("sim/lowstate")
         self.odom_cache = self.latest("locomotion/odometry")
         self._lock = threading.Lock()
@@ -131,6 +136,8 @@ class ManipulationNode(Service):
                 raise GraspRejected("unknown_posture", f"{goal.posture!r} (known: {known})")
             return PostureMove(self.geom, cfg, self.postures[goal.posture], **kw)
         if isinstance(goal, m.GraspGoal):
+            mass = float(goal.mass) if goal.mass > 0.0 else cfg.gripper.default_payload_mass
+            self._grasp_payload = m.Payload(stamp=0.0, mass=mass, object_name=goal.object_name)
             pos = np.asarray(goal.position, dtype=float)
             approaches = ("vertical", "horizontal") if goal.approach == "auto" else (goal.approach,)
             err: GraspRejected | None = None
@@ -233,6 +240,11 @@ class ManipulationNode(Service):
                     )
                 )
 
+    def _announce_payload(self, t: float, payload: m.Payload) -> None:
+        """Tell locomotion's balance model what the gripper holds (mass at the tool)."""
+        self.payload = m.Payload(stamp=t, mass=payload.mass, object_name=payload.object_name)
+        self.pub_payload.publish(self.payload)
+
     def step(self) -> None:
         """Feeds the newest joint state to the running primitive, sends its commands."""
         prim = self.active
@@ -247,6 +259,10 @@ class ManipulationNode(Service):
                 gap=round(obs.gripper_gap, 4),
                 effort=round(obs.gripper_effort, 2),
             )
+            held = self._grip_state is GripState.HOLDING
+            self._announce_payload(obs.t, self._grasp_payload if held else m.Payload(stamp=0.0))
+        elif self.payload.mass > 0.0 and obs.t - self.payload.stamp >= PAYLOAD_PERIOD_S:
+            self._announce_payload(obs.t, self.payload)  # for a locomotion started later
         if prim is None or prim.done:
             # keep watching the grip while carrying between actions (holding -> lost)
             self.monitor.update(obs.t, obs.gripper_gap, obs.gripper_effort)

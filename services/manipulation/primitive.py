@@ -45,6 +45,7 @@ __all__ = [
 # after letting it settle this long (s).
 DRIFT_TOL_M = 0.004
 DRIFT_SETTLE_S = 0.2
+ARM_STILL_SPEED = 0.3  # rad/s: the arm has come to rest at a trajectory end
 
 
 @dataclass(frozen=True)
@@ -220,11 +221,15 @@ class Primitive:
         while True:
             if obs.t >= traj.end_time:
                 err = float(np.max(np.abs(obs.q_arm - q_end)))
-                if err <= g.arm_tolerance and float(np.max(np.abs(obs.dq_arm))) < 0.3:
+                speed = np.abs(obs.dq_arm)
+                if err <= g.arm_tolerance and float(np.max(speed)) < ARM_STILL_SPEED:
                     return
                 if obs.t > traj.end_time + g.arm_timeout:
+                    # say whether the arm is held off its goal or cannot come to rest
+                    j = int(np.argmax(speed))
                     raise PrimitiveFailed(
-                        f"arm_blocked: {err:.3f} rad from the trajectory end after timeout"
+                        f"arm_blocked: {err:.3f} rad from the trajectory end after timeout, "
+                        f"joint {j + 1} still moving at {speed[j]:.2f} rad/s"
                     )
             obs = yield []
 
