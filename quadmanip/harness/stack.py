@@ -165,6 +165,7 @@ class StackRun:
         self.drawers = bus.latest("sim/gt/drawers", m.GroundTruthPoses)
         self.judge = bus.latest("sim/gt/judge", m.JudgeReport)
         self.clock = bus.latest("sim/clock", m.Clock)
+        self.payload = bus.latest("locomotion/payload", m.Payload)
         self.vel = bus.publisher("locomotion/cmd_vel", m.BodyVelocityCommand)
         self.actions = {
             n: bus.action_client("manipulation", n)
@@ -342,6 +343,11 @@ class StackRun:
     def posture(self, name: str) -> ActionOutcome:
         """``move_to_posture``: stow, carry, floor_search, ..."""
         return self.act("move_to_posture", m.PostureGoal(stamp=self.now(), posture=name))
+
+    def payload_kg(self) -> float | None:
+        """The mass manipulation last told locomotion the gripper holds (None: not yet)."""
+        p = self.payload.get()
+        return None if p is None else float(p.mass)
 
     def elapsed(self) -> str:
         """Sim and wall time since the stack was created, for progress lines."""

@@ -46,6 +46,10 @@ TALL = 0.12  # objects taller than this are grasped horizontally from a table
 LIFT_M = 0.10  # the lift
 HOLD_S = 3.0  # ... held this long
 OPEN_M = 0.15  # the drawer opening
+# Opening for putting tools in: at 15 cm the mouth is 11 cm long, shorter than the clamp
+# (12.5 x 16.5 cm), which came to rest on the cabinet top; at 24 cm it is 20 cm.
+PLACE_OPEN_M = 0.24  # in two pulls: the arm and the body pull 19 cm at most
+PLACE_STANDOFF = 0.54  # base to the closed handle when placing into the opened drawer (m)
 FLOOR_START = (2.2, 1.6, 0.0)  # open living-room floor: x, y (m), heading (deg)
 GRASP_TABLE = "living_table"
 AHEAD = (0.33, 0.40)  # object centre ahead of the base (m), uniform
@@ -260,6 +264,7 @@ def run_grasp_trial(
             out, info = _grasp(s, cat, name, surface_z, approach)
             res.update(info)
             low = s.min_height(name, HOLD_S) - z0 if out.ok else None
+            res["payload_kg"] = s.payload_kg()  # what locomotion balances for while holding
             t_lift = out.stage_time("restore body") or (out.t_end if out.ok else None)
             res.update(
                 success=bool(out.ok and low is not None and low >= LIFT_M),
@@ -342,7 +347,7 @@ def _place_target(
         h0, opened = drawer
         _, hq = s.pose("top", s.drawers)
         x_out = rot(hq)[:, 0]
-        s.face(h0[:2], math.atan2(-x_out[1], -x_out[0]), HANDLE_STANDOFF, tol=0.012)
+        s.face(h0[:2], math.atan2(-x_out[1], -x_out[0]), PLACE_STANDOFF, tol=0.012)
         h, _ = s.pose("top", s.drawers)
         height = _drawer_geometry(house, "top").height
         body = h - x_out * cab.handle_offset  # the drawer's front face, handle height
@@ -383,8 +388,12 @@ def run_place_trial(
             if place == "drawer":
                 step = "open_drawer"
                 out, opened, h0 = _open_drawer(s, "top")
+                if out.ok and opened < PLACE_OPEN_M - 0.02:
+                    # the arm and the body pull 19 cm at most: re-grip and pull the rest
+                    out, more, _ = _open_drawer(s, "top", PLACE_OPEN_M - opened)
+                    opened += more
                 drawer = (h0, opened)
-                if not (out.ok and opened >= OPEN_M - 0.01):
+                if not (out.ok and opened >= PLACE_OPEN_M - 0.02):
                     raise _TrialFailed(step, f"{out.status} {out.reason} opened {opened:.3f}")
                 s.posture("stow")
                 p, _ = s.pose(name)
@@ -418,6 +427,7 @@ def run_place_trial(
                 s.face(target[:2], heading, ahead - step_m, tol=0.015)
                 res["steps"] = res.get("steps", 0) + 1
             ok = s.in_place(name)
+            res["payload_after_kg"] = s.payload_kg()
             end, _ = s.pose(name)
             res.update(
                 success=bool(ok),

@@ -123,12 +123,7 @@ class LocomotionNode(Service):
                     self.pub_cmd.publish(self._last_cmd)
                 return
             self._last_stamp = float(ls.stamp)
-            payload = self._payload
-            self.ctl.held_mass = (
-                held_mass_from_gripper(ls.joints, self.config.node)
-                if payload is None
-                else float(payload.mass)
-            )
+            self.ctl.held_mass = held_mass(self._payload, ls.joints, self.config.node)
             out = self.ctl.step(
                 ls.stamp,
                 ls.joints.q,
@@ -184,8 +179,11 @@ class LocomotionNode(Service):
         )
 
 
-def held_mass_from_gripper(js: m.JointState, opt: NodeOptions) -> float:
-    """Mass assumed in the gripper: fingers squeezing on something count as holding."""
+def held_mass(payload: m.Payload | None, js: m.JointState, opt: NodeOptions) -> float:
+    """Mass in the gripper for the MPC: manipulation's last payload message; without one,
+    fingers squeezing on something count as holding ``opt.held_object_mass``."""
+    if payload is not None:
+        return float(payload.mass)
     holding = js.gripper_effort > opt.grip_effort_threshold and js.gripper_gap > opt.grip_min_gap
     return opt.held_object_mass if holding else 0.0
 

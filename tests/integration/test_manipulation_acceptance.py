@@ -62,6 +62,8 @@ def test_grasp_lift_and_hold(name: str, where: str):
     r = stack_trials.run_grasp_trial(name, where, seed=0, log=log)
     assert r["success"], _why(r, log)
     assert r["min_lift_m"] >= stack_trials.LIFT_M
+    # locomotion was told the object's catalogue mass for its balance model
+    assert r["payload_kg"] == pytest.approx(load_catalogue().objects[name].mass), r
     assert r["time_s"] is not None and 0.0 < r["time_s"] < 30.0, r
 
 
@@ -71,6 +73,7 @@ def test_place_into_its_region(name: str):
     r = stack_trials.run_place_trial(name, seed=0, log=log)
     assert r["success"], _why(r, log)
     assert r["region"] == load_catalogue().place_of(name)
+    assert r["payload_after_kg"] == 0.0, r  # released: locomotion balances an empty gripper
 
 
 @pytest.mark.parametrize("which", ["left", "right", "top"])

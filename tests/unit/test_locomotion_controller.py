@@ -247,7 +247,7 @@ def test_sit_down_and_damp():
 def test_node_helpers_held_mass_and_quaternion():
     from quadmanip.common import messages as m
     from quadmanip.services.locomotion.controller import NodeOptions
-    from quadmanip.services.locomotion.node import held_mass_from_gripper, rot_to_quat
+    from quadmanip.services.locomotion.node import held_mass, rot_to_quat
     from quadmanip.services.locomotion.state_estimator import quat_to_rot
 
     opt = NodeOptions(held_object_mass=0.5, grip_effort_threshold=2.0, grip_min_gap=0.005)
@@ -255,9 +255,15 @@ def test_node_helpers_held_mass_and_quaternion():
     squeezing = m.JointState(stamp=0.0, q=z, dq=z, tau=z, gripper_gap=0.03, gripper_effort=8.0)
     empty = m.JointState(stamp=0.0, q=z, dq=z, tau=z, gripper_gap=0.001, gripper_effort=8.0)
     open_ = m.JointState(stamp=0.0, q=z, dq=z, tau=z, gripper_gap=0.05, gripper_effort=0.0)
-    assert held_mass_from_gripper(squeezing, opt) == 0.5
-    assert held_mass_from_gripper(empty, opt) == 0.0  # closed on nothing
-    assert held_mass_from_gripper(open_, opt) == 0.0
+    # no word from manipulation: the gripper state decides
+    assert held_mass(None, squeezing, opt) == 0.5
+    assert held_mass(None, empty, opt) == 0.0  # closed on nothing
+    assert held_mass(None, open_, opt) == 0.0
+    # manipulation's payload wins over the guess, both ways
+    assert held_mass(m.Payload(stamp=1.0, mass=0.097), squeezing, opt) == 0.097
+    assert held_mass(m.Payload(stamp=1.0, mass=0.0), squeezing, opt) == 0.0
+    with pytest.raises(m.MessageError):
+        m.Payload(stamp=1.0, mass=-0.1)
     rng = np.random.default_rng(2)
     for _ in range(20):
         q = rng.normal(size=4)
