@@ -388,13 +388,11 @@ def _part_extent(g: object) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(g.pos, dtype=float), np.abs(rot.reshape(3, 3)) @ h  # type: ignore[attr-defined]
 
 
-# Where a person would pinch a few part-built objects (object frame: centre, half extents):
-# the clamp's bar between its jaws (its bounding-box centre is next to a jaw); the spoon's
-# handle next to the bowl: pinched across the bowl, whose equator lies below the fingertips,
-# the squeeze pressed it out of the grip within seconds (2 of 6 carries).
+# Where a person would pinch a part-built object (object frame: centre, half extents): the
+# clamp's bar between its jaws (its bounding-box centre is next to a jaw). The spoon's thin
+# handle was tried and missed: the fingers closed on nothing in every trial.
 GRASP_HINTS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
     "clamp": ((-0.027, 0.0545, 0.0), (0.02, 0.008, 0.010)),
-    "spoon": ((0.01, 0.0, -0.005), (0.012, 0.0065, 0.002)),
 }
 
 

@@ -362,11 +362,8 @@ def _place_target(
     c = np.array([cont.center[0], cont.center[1], surface_z + cont.size[2]])
     toward = -np.array([math.cos(heading), math.sin(heading), 0.0])
     target = c + toward * 0.6 * inner_depth
-    # a long object goes in along the container's long side (across the robot); so does a
-    # tall box's narrow side: the sugar box (4.5 cm deep, 17.5 cm tall) released with its
-    # narrow side towards the robot tipped over the tray's near rim
-    tall = o.size[2] > 1.5 * min(o.size[0], o.size[1]) and o.shape == "box"
-    yaw = math.pi / 2 if long_side > 2 * inner_depth or tall else None
+    # a long object goes in along the container's long side (across the robot)
+    yaw = math.pi / 2 if long_side > 2 * inner_depth else None
     return target, yaw
 
 

@@ -9,7 +9,8 @@ Measures (nothing is invented: a field that was not measured is null):
   success = the grasp succeeded and the object stayed >= 10 cm above its resting height
   for 3 s (ground truth); time per grasp = goal to lifted, sim seconds;
 * placing each object into its category's deposit place (tools: the top drawer, opened
-  first); success = the sim judge's verdict;
+  first), ``--place-trials`` random object poses each (stack mode); success = the sim
+  judge's verdict; time per place = the whole cycle (grasp, carry, walk, place), sim s;
 * opening the three drawers of the house cabinet (>= 15 cm of handle travel).
 
 ``--mode stack`` (default) runs every trial on a fresh full stack - router, sim (lockstep),
@@ -330,7 +331,7 @@ def _stack_trial(fn: Any, fargs: list[Any], log: Any) -> dict[str, Any]:
         return stack_trials.run_drawer_trial(fargs[0], log)
     if fn is _grasp_trial:
         return stack_trials.run_grasp_trial(fargs[0], fargs[1], fargs[2], log)
-    return stack_trials.run_place_trial(fargs[0], 0, log)
+    return stack_trials.run_place_trial(fargs[0], fargs[1], log)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -339,6 +340,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", type=Path, help="write the report here")
     ap.add_argument("--poses", type=int, default=10_000, help="IK poses")
     ap.add_argument("--trials", type=int, default=3, help="random poses per object and place")
+    ap.add_argument(
+        "--place-trials",
+        type=int,
+        default=3,
+        help="random object poses per place (stack mode; the physics place trial is fixed)",
+    )
     ap.add_argument("--objects", nargs="*", help="subset of objects (default: all)")
     ap.add_argument("--no-physics", action="store_true", help="IK only")
     ap.add_argument(
@@ -368,6 +375,7 @@ def main(argv: list[str] | None = None) -> int:
         "place_success": None,
         "drawers_opened": None,
         "grasp_time_s_p50": None,
+        "place_time_s_p50": None,
     }
 
     def write(complete: bool) -> None:
@@ -401,6 +409,11 @@ def main(argv: list[str] | None = None) -> int:
             times = [g["time_s"] for g in grasps if g["success"] and g["time_s"] is not None]
             placed = [p for p in places if p["success"] is not None]
             report["grasp_success_per_object"] = per_obj
+            report["place_success_per_object"] = {
+                n: float(np.mean([p["success"] for p in placed if p["object"] == n]))
+                for n in sorted({p["object"] for p in placed})
+            }
+            place_times = [p["time_s"] for p in placed if p["success"] and p["time_s"]]
             report["grasp_success_per_type"] = per_type
             summary.update(
                 grasp_success_overall=float(np.mean([g["success"] for g in grasps]))
@@ -411,6 +424,7 @@ def main(argv: list[str] | None = None) -> int:
                 places_attempted=len(placed),
                 drawers_opened=int(sum(d["success"] for d in drawers)) if drawers else None,
                 grasp_time_s_p50=float(np.median(times)) if times else None,
+                place_time_s_p50=float(np.median(place_times)) if place_times else None,
             )
             write(False)
 
@@ -433,7 +447,12 @@ def main(argv: list[str] | None = None) -> int:
                 for k in range(args.trials)
             ]
         if "places" in args.parts:
-            jobs += [(f"place {n}", places, (_place_trial, n)) for n in names]
+            k_places = args.place_trials if args.mode == "stack" else 1
+            jobs += [
+                (f"place {n} #{k}", places, (_place_trial, n, k))
+                for n in names
+                for k in range(k_places)
+            ]
         for i, (label, into, (fn, *fargs)) in enumerate(jobs, 1):
             t0 = time.time()
             if args.mode == "stack":
@@ -441,7 +460,7 @@ def main(argv: list[str] | None = None) -> int:
             elif fn is _grasp_trial:
                 into.append(_grasp_trial(fargs[0], fargs[1], rng))
             else:
-                into.append(fn(*fargs))
+                into.append(fn(fargs[0]))
             r = into[-1]
             verdict = "ok" if r["success"] else f"FAILED ({r.get('reason') or r.get('status')})"
             ts = f", {r['time_s']:.1f} s sim" if r.get("time_s") is not None else ""

@@ -63,7 +63,7 @@ class GraspConfig:
     max_forward_shift: float = 0.06
     max_crouch: float = 0.10
     # How much taller than nominal the body may stand to reach a high region (m).
-    max_rise: float = 0.06
+    max_rise: float = 0.03
     # Lift after the grasp (m) and hold-to-verify time (s).
     lift_height: float = 0.10
     verify_time: float = 0.3
@@ -78,6 +78,9 @@ class GraspConfig:
     # Place: release height above the region's top surface and retract height.
     place_release_z: float = 0.06
     retract_height: float = 0.10
+    # Place: how far (m) the held object's bottom may swing sideways when the tool leans
+    # forward to reach; a tall box released leaning lands on its edge and topples.
+    place_max_lean: float = 0.02
     # Drawer: pull distance (m) and approach stand-off in front of the handle.
     drawer_pull: float = 0.18
     drawer_standoff: float = 0.08

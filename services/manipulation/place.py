@@ -82,12 +82,16 @@ def plan_place(
             raise GraspRejected("invalid_goal", "yaw must be finite")
         roll = _wrist_roll(geom, -yaw)
     why = ""
-    # keep the grasp's pitch if possible; tilt the tool forward (up to 0.6 rad) and stand up
-    # taller (body z, up to max_rise) for far or high regions
-    for rise in (0.0, 0.5 * g.max_rise, g.max_rise):
-        z_rel = target.z - rise + hang + g.place_release_z
-        for tilt in np.arange(0.0, 0.61, 0.1):
-            pt = pitch - tilt if pitch > 0.3 else pitch
+    # keep the grasp's pitch if possible: stand up taller first (body z, up to max_rise),
+    # then lean the tool forward for far or high regions, at most 0.6 rad and as far as
+    # moves the object's bottom by place_max_lean: a tall box (the sugar box hangs 14.5 cm)
+    # released from a leaning tool lands on its edge and tips out of the tray. Too far
+    # then is a rejection (too_far) and the task steps closer.
+    max_tilt = min(0.6, math.asin(min(1.0, g.place_max_lean / max(hang, 1e-3))))
+    for tilt in np.arange(0.0, max_tilt + 0.01, 0.1):
+        pt = pitch - tilt if pitch > 0.3 else pitch
+        for rise in (0.0, 0.5 * g.max_rise, g.max_rise):
+            z_rel = target.z - rise + hang + g.place_release_z
             release = ArmTarget(target.x, z_rel, pt, roll)
             # approach and retract as high as reachable, at least 4 cm (fingertips clear)
             for up in (g.retract_height, 0.07, 0.04):
@@ -101,8 +105,8 @@ def plan_place(
                 if not why:
                     off = BodyPoseRequest(body.x_offset, y_total, body.z_offset + rise)
                     return PlacePlan(off, transit, release, retract)
-            if pitch <= 0.3:
-                break
+        if pitch <= 0.3:
+            break
     raise GraspRejected("unreachable", f"place pose: {why}")
 
 

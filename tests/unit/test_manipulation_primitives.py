@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 from quadmanip.harness.manipulation_scenes import PlacedObject, SimHarness
+from quadmanip.services.locomotion.controller import load_locomotion_config
 from quadmanip.services.manipulation.arm_kinematics import ArmGeometry, fk_tcp
 from quadmanip.services.manipulation.config import load_manipulation_config
 from quadmanip.services.manipulation.drawer import plan_drawer
@@ -77,6 +78,41 @@ def test_place_and_drawer_rejections():
     sideways = np.array([0.0, 1.0, 0.0])
     assert _reason(plan_drawer, GEOM, CFG, h, sideways, 0.15) == "pull_direction_unsupported"
     assert _reason(plan_drawer, GEOM, CFG, h, np.array([-1.0, 0, 0]), -0.1) == "invalid_goal"
+
+
+def test_place_keeps_a_tall_object_upright():
+    """A tall held object is released from a vertical tool or the place is rejected as too
+    far (the task steps closer): released leaning, the sugar box landed on its edge and
+    tipped out of the tray."""
+    q = resolve_postures(GEOM, CFG)["carry"]
+    tray = 0.125  # the tray's rim in the body frame, deposit table in front of the robot
+    hang = 0.145  # the sugar box held by its top
+    assert "too_far" in str(_rejection(plan_place, GEOM, CFG, np.array([0.445, 0, tray]), q, hang))
+    plan = plan_place(GEOM, CFG, np.array([0.39, 0.0, tray]), q, hang)
+    assert plan.release.pitch == pytest.approx(math.pi / 2, abs=0.05)
+    # released as high above the rim as a short object is (the bottom clears it)
+    short = plan_place(GEOM, CFG, np.array([0.39, 0.0, tray]), q, 0.03)
+    bottom = plan.release.z - hang + plan.body.z_offset
+    assert bottom == pytest.approx(short.release.z - 0.03 + short.body.z_offset, abs=1e-9)
+    # a short object may lean to reach farther
+    far = plan_place(GEOM, CFG, np.array([0.48, 0.0, tray]), q, 0.03)
+    assert far.release.pitch < math.pi / 2 - 0.05
+
+
+def test_body_requests_stay_within_locomotion_limits():
+    """Manipulation never asks for a body pose that locomotion rejects (z_raise 3 cm: a 6 cm
+    rise was refused mid-place and the open fingers stayed around the can)."""
+    lim = load_locomotion_config().limits
+    g = CFG.grasp
+    assert g.max_rise <= lim.z_raise
+    assert g.max_crouch <= lim.z_crouch
+    assert max(g.max_lateral_shift, g.max_forward_shift) <= lim.shift
+
+
+def _rejection(fn, *args, **kw) -> GraspRejected:
+    with pytest.raises(GraspRejected) as err:
+        fn(*args, **kw)
+    return err.value
 
 
 def test_cancel_holds_the_arm_where_it_is():
