@@ -393,14 +393,17 @@ class PostureGoal(Message):
     duration: float = 0.0  # 0: let the planner choose from velocity limits
 
 
-@message("qm.GraspGoal", (1, 2))
+@message("qm.GraspGoal", (1, 3))
 class GraspGoal(Message):
     """Grasp an object at ``position`` (base frame) about ``yaw`` (rad, base frame);
     ``approach`` vertical (from above), horizontal, or auto; ``width`` is the object's
     width across the fingers (m); ``tilt`` (rad, vertical grasps) leans the tool forward so
     the pads lie flat on a flared wall such as a bowl's (1.1: added, default 0); ``mass``
     (kg) is the object's, from perception's catalogue, for the balance controller while it
-    is held (1.2: added; 0 = unknown, manipulation assumes its configured default)."""
+    is held (1.2: added; 0 = unknown, manipulation assumes its configured default);
+    ``hang`` (m) is how far the object reaches below the grasp point, from perception's
+    model of it, so a place releases it just above the region (1.3: added; 0 = unknown,
+    manipulation measures it for a grasp near the floor, else assumes 5 cm)."""
 
     stamp: float
     position: np.ndarray = array("f8", (3,))
@@ -410,10 +413,13 @@ class GraspGoal(Message):
     object_name: str = ""
     tilt: float = 0.0
     mass: float = 0.0
+    hang: float = 0.0
 
     def _check(self) -> None:
-        if not (math.isfinite(self.mass) and self.mass >= 0.0):
-            raise MessageError(f"GraspGoal.mass must be finite and >= 0, got {self.mass}")
+        for field in ("mass", "hang"):
+            v = getattr(self, field)
+            if not (math.isfinite(v) and v >= 0.0):
+                raise MessageError(f"GraspGoal.{field} must be finite and >= 0, got {v}")
 
 
 @message("qm.PlaceGoal", (1, 1))

@@ -19,6 +19,7 @@ robot on a floor with optional table slabs and deposit boxes.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -371,6 +372,7 @@ class GraspSpec:
     yaw: float
     width: float
     tilt: float = 0.0  # tool lean for a flared vessel wall (plan_grasp's ``tilt``)
+    hang: float = 0.0  # how far the object reaches below the grasp point (GraspGoal.hang)
 
 
 def _part_extent(g: object) -> tuple[np.ndarray, np.ndarray]:
@@ -434,15 +436,38 @@ def grasp_from_poses(
     far_side: bool = False,
 ) -> GraspSpec:
     """Grasp pose for object ``name`` from its true world pose and the base's (TEST HARNESS ONLY:
-    stands in for perception; also used by the full-stack tests on ground-truth messages).
+    stands in for perception; also used by the full-stack tests on ground-truth messages),
+    with the object's hang below the grasp point (it rests on ``surface_z``).
 
     Vertical: above the largest part's centre, fingers across its narrower horizontal side,
     tool centre 3 cm below the object's top (the palm is 5 cm above the tool centre) but at
-    least 2.1 cm above the supporting surface (the fingertips reach 2 cm beyond it). Vessels are grasped at the
-    rim, fingers across the wall, on the side nearest the robot away from a handle.
-    Horizontal: at the object's centre (at most 5 cm above the surface), fingers across the
-    object's extent along the body y axis.
+    least 2.1 cm above the supporting surface (the fingertips reach 2 cm beyond it). Vessels
+    are grasped at the rim, fingers across the wall, on the side nearest the robot away from
+    a handle. Horizontal: at the object's centre (at most 5 cm above the surface), fingers
+    across the object's extent along the body y axis.
     """
+    g = _grasp_pose(
+        catalogue, name, p_world, rot_world, base_pos, base_rot, surface_z, approach, max_width,
+        far_side,
+    )  # fmt: skip
+    rot = np.asarray(base_rot, dtype=float).reshape(3, 3)
+    z_world = float((rot @ g.position_base)[2] + np.asarray(base_pos, dtype=float)[2])
+    return dataclasses.replace(g, hang=max(0.0, z_world - surface_z))
+
+
+def _grasp_pose(
+    catalogue: object,
+    name: str,
+    p_world: np.ndarray,
+    rot_world: np.ndarray,
+    base_pos: np.ndarray,
+    base_rot: np.ndarray,
+    surface_z: float,
+    approach: str = "vertical",
+    max_width: float = 0.085,
+    far_side: bool = False,
+) -> GraspSpec:
+    """:func:`grasp_from_poses` without the hang."""
     from quadmanip.sim.world.objects import object_parts
 
     spec = catalogue.objects[name]  # type: ignore[attr-defined]

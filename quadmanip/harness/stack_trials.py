@@ -217,6 +217,7 @@ def _grasp(
                     object_name=name,
                     tilt=g.tilt,
                     mass=cat.objects[name].mass,  # perception knows the class: its mass
+                    hang=g.hang,  # and its shape: how far it reaches below the grasp
                 ),
             )
             info["far_side"] = far
@@ -409,7 +410,7 @@ def run_place_trial(
             step = "walk"
             target, yaw = _place_target(s, house, cat, name, place, drawer)
             step = "place"
-            for _ in range(3):  # a task steps closer (or back) when the arm cannot reach
+            for _ in range(4):  # a task steps closer (or back) when the arm cannot reach
                 out = s.act(
                     "place",
                     m.PlaceGoal(

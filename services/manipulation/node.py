@@ -12,8 +12,10 @@ one-knot hold trajectory at the measured joints. One goal runs at a time (others
 
 ``approach = "auto"`` on a grasp picks vertical when the vertical grasp is reachable, else
 horizontal. The held object's hang below the tool centre (needed to place it from above)
-is measured at grasp time as the grasp point's height above the floor when the grasp was
-near the floor (the standing height comes from the description), else taken as 5 cm.
+comes with the grasp goal (``GraspGoal.hang``, from perception's model of the object); when
+the goal leaves it 0 it is measured at grasp time as the grasp point's height above the
+floor for a vertical grasp below table height (the standing height comes from the
+description), else taken as 5 cm.
 """
 
 from __future__ import annotations
@@ -50,6 +52,9 @@ from quadmanip.services.manipulation.trajectory import TrajectoryError
 __all__ = ["ManipulationNode", "main"]
 
 DEFAULT_HANG = 0.05
+# A vertical grasp point lower than this above the floor is taken as a floor grasp (the
+# house's tables are 40 cm high; the tallest object, the cracker box, is 21 cm).
+FLOOR_GRASP_MAX_Z = 0.30
 PAYLOAD_PERIOD_S = 1.0  # repeat the payload this often while holding
 ARM = slice(12, 16)
 ODOM_MAX_AGE = 0.5  # s: older odometry is not used for the body-drift correction
@@ -205,9 +210,13 @@ class ManipulationNode(Service):
             time.sleep(0.01)
         self.body = prim.body
         if isinstance(prim, GraspPrimitive) and prim.status is Status.SUCCEEDED:
-            z = float(handle.goal.position[2])
-            near_floor = prim.plan.approach == "vertical" and z - self.floor_z < 0.15
-            self.hang = max(0.01, z - self.floor_z) if near_floor else DEFAULT_HANG
+            goal = handle.goal
+            z = float(goal.position[2])
+            near_floor = prim.plan.approach == "vertical" and z - self.floor_z < FLOOR_GRASP_MAX_Z
+            if goal.hang > 0.0:
+                self.hang = float(goal.hang)
+            else:
+                self.hang = max(0.01, z - self.floor_z) if near_floor else DEFAULT_HANG
         if prim.status is Status.SUCCEEDED:
             return None
         if prim.status is Status.CANCELED:

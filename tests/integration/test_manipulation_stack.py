@@ -57,6 +57,7 @@ class Stack(StackRun):
             width=gs.width,
             object_name=name,
             mass=load_catalogue().objects[name].mass,
+            hang=gs.hang,
         )
         self.act("grasp", goal)
         return float(p[2])

@@ -236,7 +236,7 @@ STRATEGIES: dict[type[Message], st.SearchStrategy] = {
     m.ActionResult: auto(m.ActionResult),
     m.ActionCancel: auto(m.ActionCancel),
     m.PostureGoal: auto(m.PostureGoal),
-    m.GraspGoal: auto(m.GraspGoal, mass=nonneg),
+    m.GraspGoal: auto(m.GraspGoal, mass=nonneg, hang=nonneg),
     m.PlaceGoal: auto(m.PlaceGoal),
     m.DrawerGoal: auto(m.DrawerGoal, pull_direction=unit_vec),
     m.Disturbance: auto(m.Disturbance, duration=nonneg),
