@@ -427,7 +427,9 @@ def run_place_trial(
                 ahead = float(s.to_base(target)[0])
                 s.face(target[:2], heading, ahead - step_m, tol=0.015)
                 res["steps"] = res.get("steps", 0) + 1
-            ok = s.in_place(name)
+            # placed: the judge sees it in the region and the place released it (a box
+            # still held over the tray after a rejected place is inside it, not placed)
+            ok = s.in_place(name) and out.ok
             res["payload_after_kg"] = s.payload_kg()
             end, _ = s.pose(name)
             res.update(

@@ -81,7 +81,7 @@ def plan_place(
         if not math.isfinite(yaw):
             raise GraspRejected("invalid_goal", "yaw must be finite")
         roll = _wrist_roll(geom, -yaw)
-    why = ""
+    why = far = ""
     # keep the grasp's pitch if possible: stand up taller first (body z, up to max_rise),
     # then lean the tool forward for far or high regions, at most 0.6 rad and as far as
     # moves the object's bottom by place_max_lean: a tall box (the sugar box hangs 14.5 cm)
@@ -105,9 +105,14 @@ def plan_place(
                 if not why:
                     off = BodyPoseRequest(body.x_offset, y_total, body.z_offset + rise)
                     return PlacePlan(off, transit, release, retract)
+                if not far and why.startswith(("too_far", "too_close")):
+                    far = why
         if pitch <= 0.3:
             break
-    raise GraspRejected("unreachable", f"place pose: {why}")
+    # a variant out of reach is the reason to give: the task's fix is to stand elsewhere
+    # (between "reachable" and "too far" the elbow limit is hit first: a cracker box 1 cm
+    # beyond reach came back joint_limit and the task did not step closer)
+    raise GraspRejected("unreachable", f"place pose: {far or why}")
 
 
 class PlacePrimitive(Primitive):
@@ -126,6 +131,12 @@ class PlacePrimitive(Primitive):
         super().__init__(geom, cfg, monitor, body)
         self.plan = plan
 
+    def _check_holding(self, where: str) -> None:
+        # a place that lost its object on the way must not report success: the spoon slid
+        # out as the place began, and the release and the empty check then passed
+        if not self.monitor.holding:
+            raise PrimitiveFailed(f"object_lost {where} ({self.monitor.state.value})")
+
     def script(self) -> Script:
         """Transit above the region, lower, open, retract, verify the fingers are empty."""
         plan = self.plan
@@ -133,6 +144,7 @@ class PlacePrimitive(Primitive):
         yield []
         b = plan.body
         yield from self.move_body(b.x_offset, b.y_offset, b.z_offset)
+        self._check_holding("while the body moved")
         self.stage("place: transit above the region", 0.2)
         obs = self._last_obs
         assert obs is not None
@@ -145,8 +157,10 @@ class PlacePrimitive(Primitive):
         if solve_ik(self.geom, up, q_ref=obs.q_arm, roll_symmetric=False).ok:
             yield from self.line_to(up)
         yield from self.line_to(plan.transit)
+        self._check_holding("on the way to the region")
         self.stage("place: lower", 0.45)
         yield from self.line_to(plan.release)
+        self._check_holding("while lowering")
         self.stage("place: release", 0.6)
         yield from self.open_gripper(settle=0.5)
         self.stage("place: retract", 0.75)

@@ -227,9 +227,14 @@ class Primitive:
                 if obs.t > traj.end_time + g.arm_timeout:
                     # say whether the arm is held off its goal or cannot come to rest
                     j = int(np.argmax(speed))
-                    raise PrimitiveFailed(
-                        f"arm_blocked: {err:.3f} rad from the trajectory end after timeout, "
+                    k = int(np.argmax(np.abs(obs.q_arm - q_end)))
+                    why = (
                         f"joint {j + 1} still moving at {speed[j]:.2f} rad/s"
+                        if speed[j] >= ARM_STILL_SPEED
+                        else f"joint {k + 1} held off its goal"
+                    )
+                    raise PrimitiveFailed(
+                        f"arm_blocked: {err:.3f} rad from the trajectory end after timeout, {why}"
                     )
             obs = yield []
 

@@ -10,9 +10,15 @@ from quadmanip.services.manipulation.arm_kinematics import ArmGeometry, fk_tcp
 from quadmanip.services.manipulation.config import load_manipulation_config
 from quadmanip.services.manipulation.drawer import plan_drawer
 from quadmanip.services.manipulation.grasp import GraspPrimitive, GraspRejected, plan_grasp
-from quadmanip.services.manipulation.place import plan_place
+from quadmanip.services.manipulation.gripper import GraspMonitor, GripState
+from quadmanip.services.manipulation.place import PlacePrimitive, plan_place
 from quadmanip.services.manipulation.postures import resolve_postures
-from quadmanip.services.manipulation.primitive import ArmCommand, Status
+from quadmanip.services.manipulation.primitive import (
+    ArmCommand,
+    BodyPoseRequest,
+    Observation,
+    Status,
+)
 
 pytestmark = pytest.mark.unit
 
@@ -107,6 +113,27 @@ def test_body_requests_stay_within_locomotion_limits():
     assert g.max_rise <= lim.z_raise
     assert g.max_crouch <= lim.z_crouch
     assert max(g.max_lateral_shift, g.max_forward_shift) <= lim.shift
+
+
+def test_place_fails_when_the_object_is_lost_on_the_way():
+    """The object slides out as the place begins (fingers meet): the place fails with
+    object_lost instead of releasing nothing and reporting success."""
+    q = resolve_postures(GEOM, CFG)["carry"]
+    plan = plan_place(GEOM, CFG, np.array([0.36, 0.0, -0.10]), q, 0.03)
+    assert plan.body == BodyPoseRequest()  # no body move: the first check comes at once
+    monitor = GraspMonitor(CFG.gripper)
+    monitor.command_close(0.0)
+    for k in range(200):  # squeezing a 2 cm object until the monitor says holding
+        monitor.update(0.002 * k, 0.02, 20.0)
+    assert monitor.holding
+    prim = PlacePrimitive(GEOM, CFG, plan, monitor)
+    t = 0.4
+    while not prim.done and t < 5.0:  # the fingers have met: the object is gone
+        prim.step(Observation(t, q.copy(), np.zeros(4), 0.0, 20.0))
+        t += 0.002
+    assert prim.status is Status.FAILED
+    assert prim.reason.startswith("object_lost"), prim.reason
+    assert monitor.state is GripState.LOST
 
 
 def _rejection(fn, *args, **kw) -> GraspRejected:
