@@ -446,28 +446,6 @@ def grasp_from_poses(
     a handle. Horizontal: at the object's centre (at most 5 cm above the surface), fingers
     across the object's extent along the body y axis.
     """
-    g = _grasp_pose(
-        catalogue, name, p_world, rot_world, base_pos, base_rot, surface_z, approach, max_width,
-        far_side,
-    )  # fmt: skip
-    rot = np.asarray(base_rot, dtype=float).reshape(3, 3)
-    z_world = float((rot @ g.position_base)[2] + np.asarray(base_pos, dtype=float)[2])
-    return dataclasses.replace(g, hang=max(0.0, z_world - surface_z))
-
-
-def _grasp_pose(
-    catalogue: object,
-    name: str,
-    p_world: np.ndarray,
-    rot_world: np.ndarray,
-    base_pos: np.ndarray,
-    base_rot: np.ndarray,
-    surface_z: float,
-    approach: str = "vertical",
-    max_width: float = 0.085,
-    far_side: bool = False,
-) -> GraspSpec:
-    """:func:`grasp_from_poses` without the hang."""
     from quadmanip.sim.world.objects import object_parts
 
     spec = catalogue.objects[name]  # type: ignore[attr-defined]
@@ -480,6 +458,13 @@ def _grasp_pose(
 
     def world_to_base(q: np.ndarray) -> np.ndarray:
         return base_rot.T @ (np.asarray(q, dtype=float) - base_pos)
+
+    def grasp_at(
+        pt: np.ndarray, approach: str, yaw: float, width: float, tilt: float = 0.0
+    ) -> GraspSpec:
+        # the object reaches from the grasp point down to the surface it rests on
+        hang = max(0.0, float(pt[2]) - surface_z)
+        return GraspSpec(world_to_base(pt), approach, yaw, width, tilt=tilt, hang=hang)
 
     top = surface_z + spec.size[2]
     if spec.shape == "vessel" and approach == "vertical":
@@ -496,7 +481,7 @@ def _grasp_pose(
             # tool stood 3-4 mm off (the light cup tipped away from the first finger).
             pt = axis.copy()
             pt[2] = max(surface_z + 0.021, top - 0.03)
-            return GraspSpec(world_to_base(pt), "vertical", obj_yaw - base_yaw, spec.size[1])
+            return grasp_at(pt, "vertical", obj_yaw - base_yaw, spec.size[1])
         if not v.handle and lean > 0.35:
             # strongly flared, round (bowl): pinch the wall facing the robot (or the far
             # one, ``far_side``, when the near one is too close to the trunk) with the tool
@@ -510,8 +495,8 @@ def _grasp_pose(
             pt = axis + r_pt * d_world
             pt[2] = top - depth
             ang = math.atan2(d_world[1], d_world[0])
-            return GraspSpec(
-                world_to_base(pt),
+            return grasp_at(
+                pt,
                 "vertical",
                 ang - math.pi / 2 - base_yaw,
                 v.wall / c + 0.01,
@@ -528,7 +513,7 @@ def _grasp_pose(
         _, pt, ang = best
         pt = pt.copy()
         pt[2] = top - RIM_DEPTH
-        return GraspSpec(world_to_base(pt), "vertical", ang - math.pi / 2 - base_yaw, v.wall + 0.01)
+        return grasp_at(pt, "vertical", ang - math.pi / 2 - base_yaw, v.wall + 0.01)
     parts = object_parts(spec)
     if name in GRASP_HINTS:
         centre, half = GRASP_HINTS[name]
@@ -549,14 +534,14 @@ def _grasp_pose(
         else:
             yaw, width = obj_yaw + math.pi / 2, 2 * half[0]
         pt[2] = max(surface_z + 0.021, top - 0.03)
-        return GraspSpec(world_to_base(pt), "vertical", yaw - base_yaw, float(width))
+        return grasp_at(pt, "vertical", yaw - base_yaw, float(width))
     # horizontal: extent across the body's y axis (a round object's diameter)
     ext = np.abs(base_rot.T @ rot) @ (0.5 * np.asarray(spec.size))  # in the base frame
     if spec.shape in ("cylinder", "sphere"):
         ext[1] = 0.5 * spec.size[0]
     pt = p.copy()
     pt[2] = surface_z + min(0.05, max(0.02, 0.5 * spec.size[2]))
-    return GraspSpec(world_to_base(pt), "horizontal", 0.0, float(2 * ext[1]))
+    return grasp_at(pt, "horizontal", 0.0, float(2 * ext[1]))
 
 
 def plan_grasp_from_ground_truth(
@@ -651,7 +636,6 @@ def container_inner(place: str, center_x: float) -> tuple[float, float, float]:
 def drawer_world(which: str, handle_arm_x: float = 0.44, scenario: object | None = None) -> object:
     """The house with the robot standing square in front of drawer ``which`` (handle
     ``handle_arm_x`` ahead of the arm mount) - where navigation would have brought it."""
-    import dataclasses
 
     from quadmanip.sim.world.builder import build_world
     from quadmanip.sim.world.house import load_house
@@ -674,7 +658,6 @@ def drawer_place_world(
     """The house, the robot square in front of the top drawer, and object ``name`` on a
     stool ``ahead`` m in front of the base (a low side table, stand-in for navigation
     bringing the object within reach of the drawer)."""
-    import dataclasses
 
     from quadmanip.sim.scenarios import Placement, Scenario
 
