@@ -266,12 +266,10 @@ class GraspPrimitive(Primitive):
             lift = ArmTarget(plan.lift.x, plan.lift.z, plan.lift.pitch, float(obs.q_arm[3]))
         yield from self.line_to(lift)
         yield from self.wait(g.verify_time)
-        if not self.monitor.holding:
-            raise PrimitiveFailed(f"object_lost during lift ({self.monitor.state.value})")
+        self.require_holding("during lift")
         assert self._last_obs is not None
         self.t_lifted = self._last_obs.t
         if self.restore_body:
             self.stage("restore body pose", 0.9)
             yield from self.move_body(0.0, 0.0, 0.0)
-            if not self.monitor.holding:
-                raise PrimitiveFailed("object_lost while restoring the body")
+            self.require_holding("while restoring the body")

@@ -211,12 +211,13 @@ class ManipulationNode(Service):
         self.body = prim.body
         if isinstance(prim, GraspPrimitive) and prim.status is Status.SUCCEEDED:
             goal = handle.goal
-            z = float(goal.position[2])
-            near_floor = prim.plan.approach == "vertical" and z - self.floor_z < FLOOR_GRASP_MAX_Z
+            above_floor = float(goal.position[2]) - self.floor_z
             if goal.hang > 0.0:
                 self.hang = float(goal.hang)
+            elif prim.plan.approach == "vertical" and above_floor < FLOOR_GRASP_MAX_Z:
+                self.hang = max(0.01, above_floor)
             else:
-                self.hang = max(0.01, z - self.floor_z) if near_floor else DEFAULT_HANG
+                self.hang = DEFAULT_HANG
         if prim.status is Status.SUCCEEDED:
             return None
         if prim.status is Status.CANCELED:

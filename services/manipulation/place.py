@@ -131,12 +131,6 @@ class PlacePrimitive(Primitive):
         super().__init__(geom, cfg, monitor, body)
         self.plan = plan
 
-    def _check_holding(self, where: str) -> None:
-        # a place that lost its object on the way must not report success: the spoon slid
-        # out as the place began, and the release and the empty check then passed
-        if not self.monitor.holding:
-            raise PrimitiveFailed(f"object_lost {where} ({self.monitor.state.value})")
-
     def script(self) -> Script:
         """Transit above the region, lower, open, retract, verify the fingers are empty."""
         plan = self.plan
@@ -144,7 +138,9 @@ class PlacePrimitive(Primitive):
         yield []
         b = plan.body
         yield from self.move_body(b.x_offset, b.y_offset, b.z_offset)
-        self._check_holding("while the body moved")
+        # checked before the release: the spoon slid out as a place began, and the release
+        # and the empty check then passed on nothing
+        self.require_holding("while the body moved")
         self.stage("place: transit above the region", 0.2)
         obs = self._last_obs
         assert obs is not None
@@ -157,10 +153,10 @@ class PlacePrimitive(Primitive):
         if solve_ik(self.geom, up, q_ref=obs.q_arm, roll_symmetric=False).ok:
             yield from self.line_to(up)
         yield from self.line_to(plan.transit)
-        self._check_holding("on the way to the region")
+        self.require_holding("on the way to the region")
         self.stage("place: lower", 0.45)
         yield from self.line_to(plan.release)
-        self._check_holding("while lowering")
+        self.require_holding("while lowering")
         self.stage("place: release", 0.6)
         yield from self.open_gripper(settle=0.5)
         self.stage("place: retract", 0.75)

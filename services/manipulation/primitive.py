@@ -307,6 +307,11 @@ class Primitive:
         )
         yield from self.run_trajectory(traj)
 
+    def require_holding(self, where: str) -> None:
+        """Fails the primitive with ``object_lost`` unless the gripper still holds."""
+        if not self.monitor.holding:
+            raise PrimitiveFailed(f"object_lost {where} ({self.monitor.state.value})")
+
     def wait(self, duration: float) -> Script:
         """Idles for ``duration`` seconds of robot time."""
         assert self._last_obs is not None
