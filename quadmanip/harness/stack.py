@@ -340,6 +340,29 @@ class StackRun:
             res = h.result(timeout=0.5)
         return ActionOutcome(True, res.status, res.reason, t0, self.now(), h.feedback)
 
+    def place_within_reach(
+        self, target: np.ndarray, yaw: float | None = None, attempts: int = 4
+    ) -> tuple[ActionOutcome, int]:
+        """``place`` at world point ``target``; when manipulation rejects it as out of
+        reach (``too_far`` / ``too_close``) step 5 cm closer / back on the body axis and
+        ask again, as a task does. Returns the last outcome and the number of steps."""
+        steps = 0
+        while True:
+            goal = m.PlaceGoal(
+                stamp=self.now(),
+                position=self.to_base(target),
+                yaw=0.0 if yaw is None else yaw,
+                turn=yaw is not None,
+            )
+            out = self.act("place", goal)
+            reach = [r for r in ("too_far", "too_close") if r in out.reason]
+            if out.accepted or not reach or steps + 1 >= attempts:
+                return out, steps
+            step_m = 0.05 if reach[0] == "too_far" else -0.05
+            _, _, heading = self.base_frame()
+            self.face(target[:2], heading, float(self.to_base(target)[0]) - step_m, tol=0.015)
+            steps += 1
+
     def posture(self, name: str) -> ActionOutcome:
         """``move_to_posture``: stow, carry, floor_search, ..."""
         return self.act("move_to_posture", m.PostureGoal(stamp=self.now(), posture=name))

@@ -410,23 +410,7 @@ def run_place_trial(
             step = "walk"
             target, yaw = _place_target(s, house, cat, name, place, drawer)
             step = "place"
-            for _ in range(4):  # a task steps closer (or back) when the arm cannot reach
-                out = s.act(
-                    "place",
-                    m.PlaceGoal(
-                        stamp=s.now(),
-                        position=s.to_base(target),
-                        yaw=0.0 if yaw is None else yaw,
-                        turn=yaw is not None,
-                    ),
-                )
-                step_m = 0.05 if "too_far" in out.reason else -0.05
-                if out.accepted or not any(r in out.reason for r in ("too_far", "too_close")):
-                    break
-                _, _, heading = s.base_frame()
-                ahead = float(s.to_base(target)[0])
-                s.face(target[:2], heading, ahead - step_m, tol=0.015)
-                res["steps"] = res.get("steps", 0) + 1
+            out, res["steps"] = s.place_within_reach(target, yaw)
             # placed: the judge sees it in the region and the place released it (a box
             # still held over the tray after a rejected place is inside it, not placed)
             ok = s.in_place(name) and out.ok
