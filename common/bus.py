@@ -43,7 +43,10 @@ queryable and two publications under ``<service>/action/<name>``:
   the server's queryable answers with :class:`ActionResponse` (accepted, or rejected with
   a reason). Using a query, not a publication, means the client learns at once whether a
   server exists and accepted (no lost goal while subscriptions propagate; a timeout is
-  reported as a rejection "no action server").
+  reported as a rejection "no action server"). A session that has just opened may not
+  know the server's queryable yet, and its query then ends at once with no reply; the
+  client re-sends the same goal until ``timeout``, and the server answers a re-sent goal
+  (same ``goal_id``, same goal) as accepted, so a retry never starts a goal twice.
 * ``.../cancel`` — query with :class:`ActionCancel`, answered with :class:`ActionResponse`.
 * ``.../feedback`` and ``.../result`` — publications (``event`` QoS) of
   :class:`ActionFeedback` and :class:`ActionResult`, filtered by ``goal_id`` on the client.
@@ -828,6 +831,7 @@ class ActionServer:
         self._active: dict[str, GoalHandle] = {}
         self._threads: dict[str, threading.Thread] = {}
         self._results: OrderedDict[str, Any] = OrderedDict()
+        self._goals: OrderedDict[str, Message] = OrderedDict()  # accepted ids: re-sends
         self._stopping = False
         msgs = _messages()
         self._feedback_pub = TypedPublisher(
@@ -876,6 +880,12 @@ class ActionServer:
                 self._respond(query, "", False, f"malformed goal: {exc}")
                 return
             gid = goal_msg.goal_id
+            with self._lock:
+                seen = self._goals.get(gid)
+            if seen is not None:
+                same = seen == goal_msg.goal
+                self._respond(query, gid, same, "" if same else "duplicate goal_id")
+                return
             if not isinstance(goal_msg.goal, self.goal_type):
                 self._respond(
                     query,
@@ -897,8 +907,8 @@ class ActionServer:
                 if self._stopping:
                     self._respond(query, gid, False, "server shutting down")
                     return
-                if gid in self._active or gid in self._results:
-                    self._respond(query, gid, False, "duplicate goal_id")
+                if gid in self._goals:  # a re-send raced this one past the check above
+                    self._respond(query, gid, self._goals[gid] == goal_msg.goal, "")
                     return
                 if self._active and self._policy == "reject":
                     busy = ",".join(self._active)
@@ -909,6 +919,9 @@ class ActionServer:
                         other.cancel_event.set()
                 handle = GoalHandle(self, gid, goal_msg.goal)
                 self._active[gid] = handle
+                self._goals[gid] = goal_msg.goal
+                while len(self._goals) > self.RESULTS_KEPT:
+                    self._goals.popitem(last=False)
                 t = threading.Thread(
                     target=self._run, args=(handle,), name=f"action:{gid}", daemon=True
                 )
@@ -1116,7 +1129,8 @@ class ActionClient:
         feedback_cb: Callable[[Any], Any] | None = None,
         goal_id: str | None = None,
     ) -> ClientGoalHandle:
-        """Send ``goal``; returns at once with ``handle.accepted`` / ``handle.reason`` set."""
+        """Send ``goal``; returns with ``handle.accepted`` / ``handle.reason`` set as soon as
+        a server answers, or after ``timeout`` s ("no action server answered")."""
         msgs = _messages()
         gid = goal_id or f"{uuid.uuid4().hex[:12]}-{next(self._counter)}"
         handle = ClientGoalHandle(self, gid, feedback_cb)
@@ -1125,7 +1139,11 @@ class ActionClient:
         envelope = msgs.ActionGoal(
             stamp=self._bus.clock(), goal_id=gid, action=self.base, goal=goal
         )
-        data = self._query(f"{self.base}/goal", encode(envelope), timeout)
+        data, deadline = None, time.monotonic() + timeout
+        while data is None and (left := deadline - time.monotonic()) > 0:
+            data = self._query(f"{self.base}/goal", encode(envelope), left)
+            if data is None:  # no server known to this session yet: ask again
+                time.sleep(min(0.05, max(0.0, deadline - time.monotonic())))
         if data is None:
             handle.reason = "no action server answered"
         else:

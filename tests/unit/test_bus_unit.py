@@ -199,6 +199,40 @@ def test_action_roundtrip_reject_preempt_and_lost_result_recovery(bus):
     assert res is not None and res.status == "succeeded"
 
 
+def test_a_resent_goal_is_accepted_again_and_runs_once(bus):
+    runs: list[str] = []
+
+    def execute(h: GoalHandle) -> Clock:
+        runs.append(h.goal_id)
+        time.sleep(0.2)
+        return h.goal
+
+    bus.action_server("arm", "once", Clock, execute)  # policy "reject": busy otherwise
+    client = bus.action_client("arm", "once")
+    first = client.send_goal(Clock(stamp=2.0), goal_id="g-1")
+    again = client.send_goal(Clock(stamp=2.0), goal_id="g-1")  # a retry after a lost reply
+    assert first.accepted and again.accepted, (first.reason, again.reason)
+    assert again.result(timeout=3).result == Clock(stamp=2.0)
+    time.sleep(0.3)
+    assert runs == ["g-1"]
+    # after it finished too; another goal under that id is still refused
+    assert client.send_goal(Clock(stamp=2.0), goal_id="g-1").accepted
+    other = client.send_goal(Clock(stamp=5.0), goal_id="g-1")
+    assert not other.accepted and "duplicate" in other.reason
+    assert runs == ["g-1"]
+
+
+def test_a_goal_waits_its_timeout_for_a_server_that_appears_late(bus):
+    client = bus.action_client("arm", "late")
+    threading.Timer(0.4, lambda: bus.action_server("arm", "late", Clock, lambda h: h.goal)).start()
+    t0 = time.monotonic()
+    h = client.send_goal(Clock(stamp=1.0), timeout=5.0)
+    assert h.accepted, h.reason
+    assert 0.3 < time.monotonic() - t0 < 5.0
+    nobody = bus.action_client("arm", "nobody").send_goal(Clock(stamp=1.0), timeout=0.3)
+    assert not nobody.accepted and "no action server" in nobody.reason
+
+
 def test_liveliness_token_appears_and_disappears(bus):
     events: queue.Queue = queue.Queue()
     bus.watch_liveliness(lambda s, a: events.put((s, a)))
