@@ -336,7 +336,7 @@ def _place_target(
     name: str,
     place: str,
     drawer: tuple[np.ndarray, float] | None = None,
-) -> tuple[np.ndarray, float | None]:
+) -> tuple[np.ndarray, float]:
     """Walk to the deposit place; return the release point (world) and the gripper yaw.
     ``drawer``: the open top drawer's closed-handle position and opening (m)."""
     o = cat.objects[name]
@@ -355,7 +355,7 @@ def _place_target(
         gap = opened - DRAWER_FRONT_THICKNESS - cab.panel  # free length of the mouth
         mouth = body - x_out * (DRAWER_FRONT_THICKNESS + 0.5 * gap)
         mouth[2] = h[2] - 0.6 * height + height  # the front panel's top
-        return mouth, (math.pi / 2 if long_side > gap else None)
+        return mouth, (math.pi / 2 if long_side > gap else 0.0)
     heading = -math.pi / 2 if cont.on == "floor" else math.pi / 2
     inner_depth = cont.size[1] / 2 - cont.wall  # along the robot's heading (north/south)
     surface_z = 0.0 if cont.on == "floor" else _table(house, cont.on).height
@@ -363,8 +363,10 @@ def _place_target(
     c = np.array([cont.center[0], cont.center[1], surface_z + cont.size[2]])
     toward = -np.array([math.cos(heading), math.sin(heading), 0.0])
     target = c + toward * 0.6 * inner_depth
-    # a long object goes in along the container's long side (across the robot)
-    yaw = math.pi / 2 if long_side > 2 * inner_depth else None
+    # a long object goes in along the container's long side (across the robot), the others
+    # with the fingers along the body y (yaw 0): the carry turned the wrist a quarter turn
+    # (PostureSpec.held_across), the place turns it back
+    yaw = math.pi / 2 if long_side > 2 * inner_depth else 0.0
     return target, yaw
 
 

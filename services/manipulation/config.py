@@ -45,6 +45,11 @@ class PostureSpec:
     q: tuple[float, ...] = ()
     tcp: tuple[float, ...] = ()
     doc: str = ""
+    # With an object in the gripper, turn the wrist a quarter turn from this posture's roll
+    # so the fingers close along the body x axis: an object pinched across its narrow side
+    # then lies across the body. A spoon held by its bowl otherwise carried its 13 cm
+    # handle back into the front legs and was levered out of the grip.
+    held_across: bool = False
 
 
 @dataclass(frozen=True)

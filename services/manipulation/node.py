@@ -139,7 +139,8 @@ class ManipulationNode(Service):
             if goal.posture not in self.postures:
                 known = ", ".join(sorted(self.postures))
                 raise GraspRejected("unknown_posture", f"{goal.posture!r} (known: {known})")
-            return PostureMove(self.geom, cfg, self.postures[goal.posture], **kw)
+            held_across = cfg.postures[goal.posture].held_across
+            return PostureMove(self.geom, cfg, self.postures[goal.posture], held_across, **kw)
         if isinstance(goal, m.GraspGoal):
             mass = float(goal.mass) if goal.mass > 0.0 else cfg.gripper.default_payload_mass
             self._grasp_payload = m.Payload(stamp=0.0, mass=mass, object_name=goal.object_name)

@@ -354,17 +354,35 @@ class PostureMove(Primitive):
     name = "move_to_posture"
 
     def __init__(
-        self, geom: ArmGeometry, cfg: ManipulationConfig, q_goal: np.ndarray, **kw: Any
+        self,
+        geom: ArmGeometry,
+        cfg: ManipulationConfig,
+        q_goal: np.ndarray,
+        held_across: bool = False,
+        **kw: Any,
     ) -> None:
         super().__init__(geom, cfg, **kw)
         self.q_goal = np.asarray(q_goal, dtype=float)
+        self.held_across = held_across  # see PostureSpec.held_across
         if self.monitor.holding:  # gentler with an object in the gripper
             s = cfg.motion.holding_speed_scale
             v, a = np.asarray(cfg.motion.v_max), np.asarray(cfg.motion.a_max)
             self.limits = MotionLimits.build(geom, tuple(s * v), tuple(s * s * a))
 
+    def goal_for(self, roll_now: float) -> np.ndarray:
+        """The posture's joints; holding with ``held_across``, the wrist a quarter turn
+        from the posture's roll (the turn nearest ``roll_now``, within the wrist range)."""
+        q = self.q_goal.copy()
+        if not (self.held_across and self.monitor.holding):
+            return q
+        lo, hi = self.geom.q_min[3], self.geom.q_max[3]
+        turns = [r for r in (q[3] + math.pi / 2, q[3] - math.pi / 2) if lo <= r <= hi]
+        if turns:
+            q[3] = min(turns, key=lambda r: abs(r - roll_now))
+        return q
+
     def script(self):  # noqa: ANN201 - generator type from Primitive
         """One synchronised quintic move."""
         self.stage("moving", 0.1)
-        yield []
-        yield from self.move_joints(self.q_goal)
+        obs = yield []
+        yield from self.move_joints(self.goal_for(float(obs.q_arm[3])))

@@ -149,3 +149,32 @@ def test_floor_is_reachable_from_standing(geom):
     sol = solve_ik(geom, target)
     assert sol.ok and shift == 0.0
     assert fk(geom, sol.q)[2, 3] == pytest.approx(target.z, abs=1e-9)
+
+
+def test_carry_while_holding_turns_the_fingers_to_close_along_the_body_x(geom, pin_model):
+    """PostureSpec.held_across: carried, an object pinched across its narrow side lies
+    across the body (a spoon's handle no longer reaches back into the front legs); the
+    tool centre stays where the posture puts it."""
+    from quadmanip.services.manipulation.config import load_manipulation_config
+    from quadmanip.services.manipulation.gripper import GraspMonitor, GripState
+    from quadmanip.services.manipulation.postures import resolve_postures
+    from quadmanip.services.manipulation.primitive import PostureMove
+
+    cfg = load_manipulation_config()
+    model, data = pin_model
+    for name in ("carry", "carry_high"):
+        assert cfg.postures[name].held_across
+        q = resolve_postures(geom, cfg)[name]
+        monitor = GraspMonitor(cfg.gripper)
+        move = PostureMove(geom, cfg, q, held_across=True, monitor=monitor)
+        empty = _pin_tcp_in_arm_base(model, data, move.goal_for(0.0))
+        assert abs(empty[1, 1]) == pytest.approx(1.0, abs=1e-9)  # fingers slide along y
+        monitor.state = GripState.HOLDING
+        for roll_now in (-1.0, 0.0, 1.0):
+            q_held = move.goal_for(roll_now)
+            assert geom.q_min[3] <= q_held[3] <= geom.q_max[3]
+            if roll_now:  # the quarter turn nearer the wrist's roll now
+                assert q_held[3] == pytest.approx(q[3] + math.copysign(math.pi / 2, roll_now))
+            held = _pin_tcp_in_arm_base(model, data, q_held)
+            assert abs(held[0, 1]) == pytest.approx(1.0, abs=1e-9)  # ... now along x
+            np.testing.assert_allclose(held[:3, 3], empty[:3, 3], atol=1e-12)
