@@ -862,6 +862,13 @@ class ActionServer:
         )
         self._reply(query, resp)
 
+    def _resent(self, gid: str, goal: Message) -> tuple[bool, str] | None:
+        """The answer to a goal id already accepted (call under ``_lock``): accepted again
+        for the same goal (a client's re-send), refused for another; None if new."""
+        if gid not in self._goals:
+            return None
+        return (True, "") if self._goals[gid] == goal else (False, "duplicate goal_id")
+
     def _on_goal(self, query: zenoh.Query) -> None:
         msgs = _messages()
         with query:
@@ -881,10 +888,9 @@ class ActionServer:
                 return
             gid = goal_msg.goal_id
             with self._lock:
-                seen = self._goals.get(gid)
-            if seen is not None:
-                same = seen == goal_msg.goal
-                self._respond(query, gid, same, "" if same else "duplicate goal_id")
+                resent = self._resent(gid, goal_msg.goal)
+            if resent is not None:  # answered before the accept check: it ran already
+                self._respond(query, gid, *resent)
                 return
             if not isinstance(goal_msg.goal, self.goal_type):
                 self._respond(
@@ -907,8 +913,9 @@ class ActionServer:
                 if self._stopping:
                     self._respond(query, gid, False, "server shutting down")
                     return
-                if gid in self._goals:  # a re-send raced this one past the check above
-                    self._respond(query, gid, self._goals[gid] == goal_msg.goal, "")
+                resent = self._resent(gid, goal_msg.goal)  # raced past the check above
+                if resent is not None:
+                    self._respond(query, gid, *resent)
                     return
                 if self._active and self._policy == "reject":
                     busy = ",".join(self._active)

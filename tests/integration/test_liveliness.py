@@ -52,8 +52,8 @@ def test_sigkilled_service_is_seen_gone_within_1s(zenoh_router, spawn, bus_facto
     events = _events(watcher)
     child = spawn(RELAY, "--mode", mode, endpoint=zenoh_router)
     assert _wait(events, "relay", True, 30) is not None, child.output()
-    # the one-shot query goes through the router; on a loaded 2-core CI box its first
-    # reply has come after the 1 s timeout, so ask again rather than fail on latency
+    # a one-shot query from a session that just opened came back empty on CI although the
+    # token had been seen (see the action notes in common/bus.py): ask again
     assert _seen_by_query(watcher, "relay", 10.0), "liveliness query never listed relay"
     t_kill = time.monotonic()
     child.signal(signal.SIGKILL)
