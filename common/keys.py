@@ -24,11 +24,17 @@ from quadmanip.common.schema import Message
 __all__ = [
     "ACTIONS",
     "DEFAULT_ROBOT",
+    "TABLE",
     "Action",
     "KINDS",
+    "KeyTable",
     "SERVICES",
     "TOPICS",
     "Topic",
+    "UnknownKey",
+    "action_row",
+    "heartbeat_row",
+    "row",
     "action_key",
     "alive_key",
     "heartbeat_key",
@@ -72,10 +78,189 @@ class Topic:
     doc: str
 
 
+def validate_robot_name(robot: str) -> str:
+    """Return ``robot`` if it is a valid key chunk (lower-case snake, <= 32 chars)."""
+    if not isinstance(robot, str) or not _ROBOT_RE.match(robot):
+        raise ValueError(
+            f"invalid robot name {robot!r}: use 1-32 lower-case letters, digits, '_' "
+            "starting with a letter"
+        )
+    return robot
+
+
+def _validate_chunks(path: str, what: str) -> None:
+    chunks = path.split("/")
+    if not path or not all(_CHUNK_RE.match(c) for c in chunks):
+        raise ValueError(f"invalid {what} {path!r}: lower-case snake chunks separated by '/'")
+
+
+@dataclasses.dataclass(frozen=True)
+class Action:
+    """One known action: its goal message type (carried in ``ActionGoal.goal``)."""
+
+    name: str  # "<service>/action/<action>"
+    service: str
+    action: str
+    goal_type: type[Message]
+    doc: str
+
+
+def row(
+    service: str, suffix: str, msg_type: type[Message], kind: str, direction: str, doc: str
+) -> Topic:
+    """A topic row ``<service>/<suffix>`` (for :meth:`KeyTable.extended` in tests, benches)."""
+    _validate_chunks(service, "service name")
+    _validate_chunks(suffix, "topic suffix")
+    if kind not in KINDS:
+        raise ValueError(f"kind must be one of {KINDS}, not {kind!r}")
+    if direction not in ("in", "out"):
+        raise ValueError(f"direction must be 'in' or 'out', not {direction!r}")
+    return Topic(f"{service}/{suffix}", service, suffix, msg_type, kind, direction, doc)
+
+
+def action_row(service: str, action: str, goal_type: type[Message], doc: str) -> Action:
+    """An action row ``<service>/action/<action>``."""
+    _validate_chunks(service, "service name")
+    _validate_chunks(action, "action name")
+    return Action(f"{service}/action/{action}", service, action, goal_type, doc)
+
+
+class UnknownKey(KeyError):
+    """A topic or action that is not in the key table."""
+
+    def __str__(self) -> str:  # KeyError would print the message with quotes around it
+        return str(self.args[0]) if self.args else ""
+
+
+class KeyTable:
+    """Topics and actions by name: the wiring contract that the bus enforces.
+
+    The runtime uses :data:`TABLE`. Tests and benchmarks that need keys of their own build
+    ``TABLE.extended(...)`` and hand it to their :class:`~quadmanip.common.bus.Bus`; the
+    product table never carries them.
+    """
+
+    def __init__(self, topics: tuple[Topic, ...], actions: tuple[Action, ...]) -> None:
+        self.topics: dict[str, Topic] = {}
+        for t in topics:
+            if t.name in self.topics:
+                raise ValueError(f"topic {t.name!r} is in the key table twice")
+            self.topics[t.name] = t
+        self.actions: dict[str, Action] = {}
+        for a in actions:
+            if a.name in self.actions:
+                raise ValueError(f"action {a.name!r} is in the key table twice")
+            self.actions[a.name] = a
+
+    @property
+    def services(self) -> tuple[str, ...]:
+        """Every service that owns a row, in table order."""
+        seen = dict.fromkeys(t.service for t in self.topics.values())
+        seen.update(dict.fromkeys(a.service for a in self.actions.values()))
+        return tuple(seen)
+
+    def extended(
+        self,
+        topics: tuple[Topic, ...] = (),
+        actions: tuple[Action, ...] = (),
+        services: tuple[str, ...] = (),
+    ) -> KeyTable:
+        """This table plus ``topics`` and ``actions``; a heartbeat row is added for every
+        service that has none yet (those named in ``services``, ``topics`` and
+        ``actions``)."""
+        new = (*services, *(t.service for t in topics), *(a.service for a in actions))
+        beats = tuple(
+            heartbeat_row(s)
+            for s in dict.fromkeys(new)
+            if f"{s}/heartbeat" not in self.topics
+            and not any(t.name == f"{s}/heartbeat" for t in topics)
+        )
+        return KeyTable(
+            (*self.topics.values(), *topics, *beats), (*self.actions.values(), *actions)
+        )
+
+    def topic(self, name: str) -> Topic:
+        """The row of topic ``name`` ("sim/lowstate"); :class:`UnknownKey` otherwise."""
+        try:
+            return self.topics[name]
+        except KeyError:
+            raise UnknownKey(
+                f"topic {name!r} is not in the key table (quadmanip.common.keys); "
+                f"known: {', '.join(sorted(self.topics))}"
+            ) from None
+
+    def match(self, pattern: str) -> list[Topic]:
+        """Rows whose name matches a Zenoh key expression (``*`` one chunk, ``**`` any)."""
+        if "*" not in pattern:
+            return [self.topic(pattern)]
+        rx = re.compile(
+            "^"
+            + "/".join(
+                ".*" if c == "**" else "[^/]+" if c == "*" else re.escape(c)
+                for c in pattern.split("/")
+            )
+            + "$"
+        )
+        rows = [t for t in self.topics.values() if rx.match(t.name)]
+        if not rows:
+            raise UnknownKey(f"no topic of the key table matches {pattern!r}")
+        return rows
+
+    def message_type(self, pattern: str) -> type[Message]:
+        """The one message type of the rows matching ``pattern``."""
+        types = {t.msg_type for t in self.match(pattern)}
+        if len(types) != 1:
+            names = sorted(t.__name__ for t in types)
+            raise UnknownKey(f"{pattern!r} matches topics of several message types: {names}")
+        return types.pop()
+
+    def action(self, service: str, action: str) -> Action:
+        """The row of action ``<service>/action/<action>``; :class:`UnknownKey` otherwise."""
+        name = f"{service}/action/{action}"
+        try:
+            return self.actions[name]
+        except KeyError:
+            raise UnknownKey(
+                f"action {name!r} is not in the key table (quadmanip.common.keys); "
+                f"known: {', '.join(sorted(self.actions)) or 'none'}"
+            ) from None
+
+    def render_markdown(self, robot: str = DEFAULT_ROBOT) -> str:
+        """The table as Markdown (the README and ``quadmanip keys`` show it)."""
+        lines = [
+            "| key | message | kind | direction | owner | what |",
+            "|---|---|---|---|---|---|",
+        ]
+        for t in self.topics.values():
+            lines.append(
+                f"| `{key(robot, t.name, self)}` | `{t.msg_type.__name__}` | {t.kind} "
+                f"| {t.direction} | {t.service} | {t.doc} |"
+            )
+        for a in self.actions.values():
+            lines.append(
+                f"| `{action_key(robot, a.service, a.action)}` "
+                f"| `ActionGoal({a.goal_type.__name__})` | action | in | {a.service} | {a.doc} |"
+            )
+        lines.append(
+            f"| `{PREFIX}/{robot}/<service>/action/<name>/…` | `ActionGoal` … `ActionResult` "
+            "| action | in | service | goal, response, feedback, result, cancel, status |"
+        )
+        lines.append(
+            f"| `{PREFIX}/{robot}/<service>/alive` | liveliness token | — | out | service "
+            "| present while the service runs |"
+        )
+        return "\n".join(lines) + "\n"
+
+
+def heartbeat_row(service: str) -> Topic:
+    """The heartbeat row every service has."""
+    return row(service, "heartbeat", m.Heartbeat, "event", "out", "1 Hz service heartbeat")
+
+
 def _t(
     service: str, suffix: str, msg_type: type[Message], kind: str, direction: str, doc: str
 ) -> Topic:
-    return Topic(f"{service}/{suffix}", service, suffix, msg_type, kind, direction, doc)
+    return row(service, suffix, msg_type, kind, direction, doc)
 
 
 _TABLE: tuple[Topic, ...] = (
@@ -103,69 +288,33 @@ _TABLE: tuple[Topic, ...] = (
     _t("locomotion", "payload", m.Payload, "control", "in", "mass in the gripper (manip.)"),
     _t("locomotion", "odometry", m.Odometry, "sensor", "out", "estimated base state (odom)"),
     _t("locomotion", "debug", m.LocomotionDebug, "sensor", "out", "gait, forces, MPC"),
-) + tuple(
-    _t(s, "heartbeat", m.Heartbeat, "event", "out", "1 Hz service heartbeat") for s in SERVICES
 )
 
-TOPICS: dict[str, Topic] = {t.name: t for t in _TABLE}
+
+TABLE = KeyTable(
+    _TABLE + tuple(heartbeat_row(s) for s in SERVICES),
+    (
+        action_row("manipulation", "move_to_posture", m.PostureGoal, "arm to a named posture"),
+        action_row("manipulation", "grasp", m.GraspGoal, "grasp an object (Algorithm 6)"),
+        action_row("manipulation", "place", m.PlaceGoal, "place the held object"),
+        action_row("manipulation", "open_drawer", m.DrawerGoal, "pull a drawer open"),
+    ),
+)
+"""The product's key table."""
+TOPICS: dict[str, Topic] = TABLE.topics
 """Topic name ("sim/lowstate") -> row."""
-
-
-@dataclasses.dataclass(frozen=True)
-class Action:
-    """One known action: its goal message type (carried in ``ActionGoal.goal``)."""
-
-    name: str  # "<service>/action/<action>"
-    service: str
-    action: str
-    goal_type: type[Message]
-    doc: str
-
-
-def _a(service: str, action: str, goal_type: type[Message], doc: str) -> Action:
-    return Action(f"{service}/action/{action}", service, action, goal_type, doc)
-
-
-ACTIONS: dict[str, Action] = {
-    a.name: a
-    for a in (
-        _a("manipulation", "move_to_posture", m.PostureGoal, "arm to a named posture"),
-        _a("manipulation", "grasp", m.GraspGoal, "grasp an object (Algorithm 6)"),
-        _a("manipulation", "place", m.PlaceGoal, "place the held object"),
-        _a("manipulation", "open_drawer", m.DrawerGoal, "pull a drawer open"),
-    )
-}
-"""Action name ("manipulation/action/grasp") -> row. Servers may offer more; these are the
-ones other services rely on."""
-
-
-def validate_robot_name(robot: str) -> str:
-    """Return ``robot`` if it is a valid key chunk (lower-case snake, <= 32 chars)."""
-    if not isinstance(robot, str) or not _ROBOT_RE.match(robot):
-        raise ValueError(
-            f"invalid robot name {robot!r}: use 1-32 lower-case letters, digits, '_' "
-            "starting with a letter"
-        )
-    return robot
-
-
-def _validate_chunks(path: str, what: str) -> None:
-    chunks = path.split("/")
-    if not path or not all(_CHUNK_RE.match(c) for c in chunks):
-        raise ValueError(f"invalid {what} {path!r}: lower-case snake chunks separated by '/'")
+ACTIONS: dict[str, Action] = TABLE.actions
+"""Action name ("manipulation/action/grasp") -> row."""
 
 
 def topic(name: str) -> Topic:
-    """The table row for a topic name; KeyError lists the known names."""
-    try:
-        return TOPICS[name]
-    except KeyError:
-        raise KeyError(f"unknown topic {name!r}; known: {sorted(TOPICS)}") from None
+    """The product table's row for a topic name; :class:`UnknownKey` lists the known names."""
+    return TABLE.topic(name)
 
 
-def key(robot: str, name: str) -> str:
+def key(robot: str, name: str, table: KeyTable | None = None) -> str:
     """Full key for a topic in the table: ``key("dog1", "sim/lowstate")``."""
-    topic(name)
+    (table or TABLE).topic(name)
     return f"{PREFIX}/{validate_robot_name(robot)}/{name}"
 
 
@@ -200,28 +349,5 @@ def parse_key(full_key: str) -> tuple[str, str]:
 
 
 def render_key_table_markdown(robot: str = DEFAULT_ROBOT) -> str:
-    """The key table as a Markdown table (the README includes it)."""
-    lines = [
-        "| key | message | kind | direction | owner | what |",
-        "|---|---|---|---|---|---|",
-    ]
-    for t in _TABLE:
-        lines.append(
-            f"| `{key(robot, t.name)}` | `{t.msg_type.__name__}` | {t.kind} | {t.direction} "
-            f"| {t.service} | {t.doc} |"
-        )
-    for a in ACTIONS.values():
-        lines.append(
-            f"| `{action_key(robot, a.service, a.action)}` | `ActionGoal({a.goal_type.__name__})`"
-            f" | action | in | {a.service} | {a.doc} |"
-        )
-    lines.append(
-        f"| `{PREFIX}/{robot}/<service>/action/<name>` | `ActionGoal` … `ActionResult` "
-        "| action | in | service | long-running requests (goal, response, feedback, result, "
-        "cancel) |"
-    )
-    lines.append(
-        f"| `{PREFIX}/{robot}/<service>/alive` | liveliness token | — | out | service "
-        "| present while the service runs |"
-    )
-    return "\n".join(lines) + "\n"
+    """The product key table as Markdown (the README includes it)."""
+    return TABLE.render_markdown(robot)

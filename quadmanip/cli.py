@@ -19,10 +19,10 @@ from quadmanip import services_registry
 
 # Dispatch targets named in the shared contracts: sub-command -> "module:function".
 BENCH_TARGETS: dict[str, str] = {
-    "bus": "quadmanip.common.bench_bus:main",
-    "sim": "quadmanip.sim.bench:main",
-    "locomotion": "quadmanip.services.locomotion.bench:main",
-    "manipulation": "quadmanip.services.manipulation.bench:main",
+    "bus": "quadmanip.testbench.bench_bus:main",
+    "sim": "quadmanip.testbench.bench_sim:main",
+    "locomotion": "quadmanip.testbench.bench_locomotion:main",
+    "manipulation": "quadmanip.testbench.bench_manipulation:main",
 }
 ROUTER_TARGET = "quadmanip.common.router:main"
 SIM_TOOLS: dict[str, str] = {"snapshot": "quadmanip.sim.snapshot:main"}

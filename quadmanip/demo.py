@@ -170,7 +170,7 @@ class RoundTrip:
     """Joint commands through the router to an echo process and back, at ``rate_hz``."""
 
     def __init__(self, bus: object, connect: str, rate_hz: float = 100.0) -> None:
-        from quadmanip.common import bench_bus as bb
+        from quadmanip.testbench import bench_bus as bb
         from quadmanip.common.messages import LegCommand
 
         self._bb = bb
@@ -178,7 +178,7 @@ class RoundTrip:
             [
                 sys.executable,
                 "-m",
-                "quadmanip.common.bench_bus",
+                "quadmanip.testbench.bench_bus",
                 "--echo",
                 "--mode",
                 "client",

@@ -8,7 +8,7 @@ import subprocess
 import sys
 
 import pytest
-from quadmanip.common.bench_bus import SUMMARY_FIELDS, TARGETS
+from quadmanip.testbench.bench_bus import SUMMARY_FIELDS, TARGETS
 
 pytestmark = pytest.mark.integration
 

@@ -1,6 +1,6 @@
 """Issue 5's acceptance in the default suite, over the full stack.
 
-Every case is one trial of ``quadmanip.harness.stack_trials`` - the same code the
+Every case is one trial of ``quadmanip.testbench.stack_trials`` - the same code the
 benchmark's ``--mode stack`` matrix runs - on a fresh stack: a private router and the sim
 (lockstep, the house), locomotion and manipulation as separate processes over Zenoh. The
 harness plays navigation and perception from ground truth; verdicts come from ground
@@ -16,7 +16,7 @@ from __future__ import annotations
 import io
 
 import pytest
-from quadmanip.harness import stack_trials
+from quadmanip.testbench import stack_trials
 from quadmanip.sim.world.objects import load_catalogue
 
 pytestmark = pytest.mark.integration

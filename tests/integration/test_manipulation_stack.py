@@ -1,6 +1,6 @@
 """Issue 5 acceptance over the real stack: sim, locomotion and manipulation as processes.
 
-One stack (``quadmanip.harness.stack.StackRun``: a private router, ``quadmanip service sim
+One stack (``quadmanip.testbench.stack.StackRun``: a private router, ``quadmanip service sim
 --lockstep`` on a scenario file, ``quadmanip service locomotion``, ``quadmanip service
 manipulation``) on scenario ``paper-2`` with the robot starting in the kitchen in front of
 the cabinet. The test plays navigation (velocity commands from the ground-truth base
@@ -24,8 +24,8 @@ import sys
 import numpy as np
 import pytest
 from quadmanip.common import messages as m
-from quadmanip.harness.manipulation_scenes import TABLE_HEIGHT, grasp_from_poses
-from quadmanip.harness.stack import ActionOutcome, StackRun, rot
+from quadmanip.testbench.manipulation_scenes import TABLE_HEIGHT, grasp_from_poses
+from quadmanip.testbench.stack import ActionOutcome, StackRun, rot
 from quadmanip.sim.scenarios import get_scenario
 from quadmanip.sim.world.house import load_house
 from quadmanip.sim.world.objects import load_catalogue

@@ -2,7 +2,7 @@
 
 A client in the test process counts what arrives, by sim time: LowState at 500 Hz
 (within 5 %), RGB-D from both cameras and LiDAR scans at 10 Hz, in ``lockstep`` (answered
-by the trivial responder process of ``quadmanip.sim.bench``) and in ``realtime``. The
+by the trivial responder process of ``quadmanip.testbench.bench_sim``) and in ``realtime``. The
 test-only disturbance channel is refused when the config does not enable it.
 """
 
@@ -87,7 +87,7 @@ def _check_rates(col: Collector, t0: float) -> None:
 def test_lockstep_rates_with_responder(zenoh_router, spawn, bus_factory):
     bus = bus_factory(zenoh_router)
     col = Collector(bus)
-    responder = spawn("-m", "quadmanip.sim.bench", "responder", endpoint=zenoh_router)
+    responder = spawn("-m", "quadmanip.testbench.bench_sim", "responder", endpoint=zenoh_router)
     assert responder.wait_for("responder ready", 30), responder.output()
     node = _start_sim(spawn, zenoh_router, "--lockstep")
     assert col.wait_sim(0.5, 60), node.output()[-3000:]

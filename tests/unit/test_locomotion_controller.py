@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 import pytest
 from quadmanip.common import robot_description as rd
-from quadmanip.harness.locomotion_plant import SimPlant, controller_step
+from quadmanip.testbench.locomotion_plant import SimPlant, controller_step
 from quadmanip.services.locomotion.controller import (
     CommandError,
     LocomotionController,

@@ -2,7 +2,7 @@
 
 The scene is the robot description on a floor with table slabs and deposit containers of
 the house's sizes (or the house itself for the drawers). The legs are held by the sim's
-actuator layer at standing targets (test stand-in for locomotion, see quadmanip/harness/manipulation_scenes.py);
+actuator layer at standing targets (test stand-in for locomotion, see quadmanip/testbench/manipulation_scenes.py);
 grasp poses come from ground truth (stand-in for perception). Everything else - arm,
 gripper, objects - moves only through the actuator layer's torques and contacts.
 """
@@ -12,7 +12,7 @@ import math
 import mujoco
 import numpy as np
 import pytest
-from quadmanip.harness.manipulation_scenes import (
+from quadmanip.testbench.manipulation_scenes import (
     TABLE_HEIGHT,
     PlacedObject,
     SimHarness,

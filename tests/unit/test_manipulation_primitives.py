@@ -4,7 +4,7 @@ import math
 
 import numpy as np
 import pytest
-from quadmanip.harness.manipulation_scenes import PlacedObject, SimHarness
+from quadmanip.testbench.manipulation_scenes import PlacedObject, SimHarness
 from quadmanip.services.locomotion.controller import load_locomotion_config
 from quadmanip.services.manipulation.arm_kinematics import ArmGeometry, fk_tcp
 from quadmanip.services.manipulation.config import load_manipulation_config

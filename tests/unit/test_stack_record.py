@@ -9,8 +9,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # before mujoco is imported
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 from quadmanip.common import robot_description as rd  # noqa: E402
-from quadmanip.harness import stack_trials as st  # noqa: E402
-from quadmanip.harness.stack_record import HEIGHT, WIDTH, StackFilm, _Sample  # noqa: E402
+from quadmanip.testbench import stack_trials as st  # noqa: E402
+from quadmanip.testbench.stack_record import HEIGHT, WIDTH, StackFilm, _Sample  # noqa: E402
 
 pytestmark = pytest.mark.unit
 

@@ -15,9 +15,9 @@ Measures (nothing is invented: a field that was not measured is null):
 
 ``--mode stack`` (default) runs every trial on a fresh full stack - router, sim (lockstep),
 locomotion and manipulation as separate processes over Zenoh - in the house
-(``quadmanip.harness.stack_trials``); each child's output goes to ``FILE.trials.log``.
+(``quadmanip.testbench.stack_trials``); each child's output goes to ``FILE.trials.log``.
 ``--mode physics`` runs the same primitives in-process on a standing stand-in body
-(``quadmanip.harness.manipulation_scenes``): ten times faster, for tuning the primitives.
+(``quadmanip.testbench.manipulation_scenes``): ten times faster, for tuning the primitives.
 """
 
 from __future__ import annotations
@@ -66,7 +66,7 @@ def bench_ik(n: int, seed: int = 0) -> dict[str, Any]:
 
 
 def _grasp_trial(name: str, where: str, rng: np.random.Generator) -> dict[str, Any]:
-    from quadmanip.harness.manipulation_scenes import (
+    from quadmanip.testbench.manipulation_scenes import (
         TABLE_HEIGHT,
         PlacedObject,
         SimHarness,
@@ -135,7 +135,7 @@ def _grasp_trial(name: str, where: str, rng: np.random.Generator) -> dict[str, A
 
 
 def _place_trial(name: str) -> dict[str, Any]:
-    from quadmanip.harness.manipulation_scenes import (
+    from quadmanip.testbench.manipulation_scenes import (
         TABLE_HEIGHT,
         PlacedObject,
         SimHarness,
@@ -214,7 +214,7 @@ def _place_trial(name: str) -> dict[str, Any]:
 
 def _drawer_place_trial(name: str, out: dict[str, Any]) -> dict[str, Any]:
     """Tools go into the top drawer: open it, carry posture, grasp from a stool, place."""
-    from quadmanip.harness.manipulation_scenes import (
+    from quadmanip.testbench.manipulation_scenes import (
         SimHarness,
         drawer_mouth,
         drawer_place_world,
@@ -299,7 +299,7 @@ def _drawer_place_trial(name: str, out: dict[str, Any]) -> dict[str, Any]:
 
 
 def _drawer_trial(which: str) -> dict[str, Any]:
-    from quadmanip.harness.manipulation_scenes import SimHarness, drawer_world
+    from quadmanip.testbench.manipulation_scenes import SimHarness, drawer_world
     from quadmanip.services.manipulation.drawer import DrawerPrimitive, plan_drawer
 
     cfg = load_manipulation_config()
@@ -324,8 +324,8 @@ def _drawer_trial(which: str) -> dict[str, Any]:
 
 
 def _stack_trial(fn: Any, fargs: list[Any], log: Any) -> dict[str, Any]:
-    """The same trial over the full stack (``quadmanip.harness.stack_trials``)."""
-    from quadmanip.harness import stack_trials
+    """The same trial over the full stack (``quadmanip.testbench.stack_trials``)."""
+    from quadmanip.testbench import stack_trials
 
     if fn is _drawer_trial:
         return stack_trials.run_drawer_trial(fargs[0], log)

@@ -1,7 +1,7 @@
 """PNG sequences of a floor grasp, a table grasp, a place and a drawer opening.
 
-``python -m quadmanip.harness.manipulation_record OUT_DIR`` renders the in-process physics
-runs of the tests (``quadmanip/harness/manipulation_scenes.py``) from a fixed side camera, one frame every
+``python -m quadmanip.testbench.manipulation_record OUT_DIR`` renders the in-process physics
+runs of the tests (``quadmanip/testbench/manipulation_scenes.py``) from a fixed side camera, one frame every
 ``--period`` sim seconds, plus a contact sheet per run. Evidence for reviewers; not used
 by the service.
 """
@@ -14,7 +14,7 @@ from typing import Any
 
 import mujoco
 import numpy as np
-from quadmanip.harness.manipulation_scenes import (
+from quadmanip.testbench.manipulation_scenes import (
     TABLE_HEIGHT,
     PlacedObject,
     SimHarness,
@@ -93,7 +93,7 @@ def contact_sheet(frames: list[np.ndarray]) -> Any:
 
 def main(argv: list[str] | None = None) -> int:
     """Renders the four runs into ``OUT_DIR/<run>/``."""
-    ap = argparse.ArgumentParser(prog="python -m quadmanip.harness.manipulation_record")
+    ap = argparse.ArgumentParser(prog="python -m quadmanip.testbench.manipulation_record")
     ap.add_argument("out", type=Path)
     ap.add_argument("--period", type=float, default=0.25)
     ap.add_argument("--docs", type=Path, help="also write one compact sheet per run here")

@@ -8,7 +8,7 @@ Measures, in the house of scenario ``paper-1``:
   depth from one render pass) per camera; the summary holds the mean over both cameras.
 * ``full_sensors_rtf``: the real node in its own process in ``lockstep`` mode with every
   sensor and ground-truth stream on, answered by a trivial responder process
-  (``python -m quadmanip.sim.bench responder``) over a real local Zenoh router; the RTF is
+  (``python -m quadmanip.testbench.bench_sim responder``) over a real local Zenoh router; the RTF is
   sim time over wall time seen on ``sim/clock`` by this process.
 
 Targets on the 2-core dev machine (issue 3): physics >= 5x, full sensors >= 1.5x.
@@ -159,7 +159,7 @@ def bench_full(wall_seconds: float = 20.0, warmup_s: float = 3.0) -> dict[str, A
     try:
         start("router", "-m", "quadmanip.common.router", "--listen", ep)
         time.sleep(1.0)
-        start("responder", "-m", "quadmanip.sim.bench", "responder")
+        start("responder", "-m", "quadmanip.testbench.bench_sim", "responder")
         node = start("node", "-m", "quadmanip.sim.node", "--lockstep", "--scenario", SCENARIO)
         cfg = BusConfig(mode="peer", connect=(ep,), listen=("tcp/127.0.0.1:0",), env_override=False)
         stamps: list[tuple[float, float]] = []
@@ -226,7 +226,7 @@ def responder_main(argv: list[str]) -> int:
     from quadmanip.common.bus import Bus, apply_env, load_bus_config
     from quadmanip.common.log import configure_logging, get_logger
 
-    p = argparse.ArgumentParser(prog="quadmanip.sim.bench responder")
+    p = argparse.ArgumentParser(prog="quadmanip.testbench.bench_sim responder")
     p.add_argument("--home", action="store_true", help="hold the home pose instead")
     p.add_argument("--kp", type=float, default=60.0)
     p.add_argument("--kd", type=float, default=2.0)

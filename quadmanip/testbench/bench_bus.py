@@ -300,7 +300,7 @@ def free_tcp_endpoint() -> str:
 
 def _spawn(args: list[str]) -> subprocess.Popen[bytes]:
     return subprocess.Popen(
-        [sys.executable, "-m", "quadmanip.common.bench_bus", *args],
+        [sys.executable, "-m", "quadmanip.testbench.bench_bus", *args],
         stdin=subprocess.DEVNULL,
         start_new_session=True,
     )

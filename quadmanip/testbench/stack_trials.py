@@ -1,9 +1,9 @@
 """Issue 5's acceptance trials over the full stack (sim, locomotion, manipulation processes).
 
-Each trial is one fresh :class:`~quadmanip.harness.stack.StackRun` on its own scenario
+Each trial is one fresh :class:`~quadmanip.testbench.stack.StackRun` on its own scenario
 file: the house, one object at a random resting pose, the robot starting in front of it.
 The harness plays navigation (walking on ground truth) and perception (grasp poses from
-ground truth, :func:`~quadmanip.harness.manipulation_scenes.grasp_from_poses`); the
+ground truth, :func:`~quadmanip.testbench.manipulation_scenes.grasp_from_poses`); the
 manipulation service does the rest through its actions. Verdicts come from ground truth:
 
 * grasp: the action succeeded and the object stayed >= 10 cm above its resting height
@@ -27,8 +27,8 @@ from typing import Any, TextIO
 
 import numpy as np
 from quadmanip.common import messages as m
-from quadmanip.harness.manipulation_scenes import GraspSpec, grasp_from_poses
-from quadmanip.harness.stack import StackError, StackRun, rot
+from quadmanip.testbench.manipulation_scenes import GraspSpec, grasp_from_poses
+from quadmanip.testbench.stack import StackError, StackRun, rot
 from quadmanip.sim.scenarios import Placement, Scenario
 from quadmanip.sim.world.house import DRAWER_FRONT_THICKNESS, HouseConfig, load_house
 from quadmanip.sim.world.objects import Catalogue, load_catalogue

@@ -63,7 +63,7 @@ def _pct(values: list[float], q: float) -> float:
 # --------------------------------------------------------------------------- in-process
 def run_in_process(profile: str, record: bool = False, segment_s: float = SEGMENT_S) -> dict:
     """Stand up, then the command sequence; returns RMSEs, falls, MPC timings, traces."""
-    from quadmanip.harness.locomotion_plant import SimPlant, controller_step
+    from quadmanip.testbench.locomotion_plant import SimPlant, controller_step
 
     ctl = LocomotionController(load_locomotion_config(profile=profile))
     plant = SimPlant()

@@ -1,7 +1,7 @@
 """PNG sequences of full-stack trials: a floor grasp, a table grasp, a place, a drawer.
 
-``MUJOCO_GL=egl python -m quadmanip.harness.stack_record OUT_DIR [--docs DIR]`` runs four
-acceptance trials of :mod:`quadmanip.harness.stack_trials` (sim, locomotion and
+``MUJOCO_GL=egl python -m quadmanip.testbench.stack_record OUT_DIR [--docs DIR]`` runs four
+acceptance trials of :mod:`quadmanip.testbench.stack_trials` (sim, locomotion and
 manipulation as processes over Zenoh) and films each one: every ``--period`` sim seconds
 it samples what went over the wire - the joint angles and finger gap in ``sim/lowstate``,
 the ground-truth base, object and drawer-handle poses - and afterwards replays those
@@ -24,8 +24,8 @@ import mujoco
 import numpy as np
 from quadmanip.common import messages as m
 from quadmanip.common import robot_description as rd
-from quadmanip.harness.manipulation_record import contact_sheet
-from quadmanip.harness.stack import StackRun, rot
+from quadmanip.testbench.manipulation_record import contact_sheet
+from quadmanip.testbench.stack import StackRun, rot
 from quadmanip.sim.scenarios import Scenario
 from quadmanip.sim.world import build_world
 
@@ -168,9 +168,9 @@ class StackFilm:
 
 def main(argv: list[str] | None = None) -> int:
     """Film the four runs into ``OUT_DIR/<run>/``."""
-    from quadmanip.harness import stack_trials as st
+    from quadmanip.testbench import stack_trials as st
 
-    ap = argparse.ArgumentParser(prog="python -m quadmanip.harness.stack_record")
+    ap = argparse.ArgumentParser(prog="python -m quadmanip.testbench.stack_record")
     ap.add_argument("out", type=Path)
     ap.add_argument("--period", type=float, default=0.25, help="sim seconds between frames")
     ap.add_argument("--docs", type=Path, help="also write one small sheet per run here")
