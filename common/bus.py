@@ -5,7 +5,13 @@ Every service talks to every other only through a :class:`Bus`. Keys follow
 (``"sim/lowstate"``) and add the prefix (a key that already starts with ``qm/`` is used
 as is). Payloads are the msgpack encoding of :mod:`quadmanip.common.messages`.
 
-Quality of service, by traffic kind (``publisher(..., kind=...)``):
+The key table (:mod:`quadmanip.common.keys`) is the only wiring contract: a topic's
+message type and kind (QoS) come from its row, so ``bus.publisher("sim/lowstate")`` needs
+nothing else. A topic or action that is not in the table, or a message of another type,
+is refused with :class:`~quadmanip.common.keys.UnknownKey` or ``TypeError``. Tests and
+benchmarks with keys of their own pass ``Bus(table=keys.TABLE.extended(...))``.
+
+Quality of service, by traffic kind (the ``kind`` column of the key table):
 
 * ``"control"`` (leg/arm/gripper commands, velocity commands): reliable, congestion
   control BLOCK (a command is never silently dropped), priority REAL_TIME, express (not
@@ -72,6 +78,7 @@ from typing import Any, Generic, Literal, TypeVar
 
 import zenoh
 from quadmanip.common import keys
+from quadmanip.common import messages as msgs
 from quadmanip.common.config import load_config
 from quadmanip.common.log import get_logger
 from quadmanip.common.schema import Message, MessageError, decode, encode
@@ -103,7 +110,6 @@ Kind = Literal["control", "sensor", "event", "gt", "action"]
 ENV_CONNECT = "QM_ZENOH_CONNECT"
 ENV_LISTEN = "QM_ZENOH_LISTEN"
 ENV_MODE = "QM_ZENOH_MODE"
-DEFAULT_ROBOT = "dog1"
 
 
 # --------------------------------------------------------------------------- config
@@ -346,11 +352,6 @@ class TypedPublisher(Generic[M]):
         self._bus.stats.add(self.key, "published")
 
     put = publish
-
-    @property
-    def has_subscribers(self) -> bool:
-        """Whether any subscriber currently matches this key."""
-        return bool(self._pub.matching_status)
 
     def undeclare(self) -> None:
         try:
@@ -598,18 +599,21 @@ class Bus:
     """One Zenoh session of one process, with typed helpers; use as a context manager.
 
     ``Bus(config)`` uses the config as given; ``Bus()`` loads ``configs/bus.toml`` and the
-    ``QM_ZENOH_*`` environment overrides. ``clock`` stamps messages the bus creates itself
+    ``QM_ZENOH_*`` environment overrides. ``table`` is the key table it enforces (the
+    product's :data:`~quadmanip.common.keys.TABLE` unless a test or benchmark extends it). ``clock`` stamps messages the bus creates itself
     (heartbeats, action envelopes): pass the robot clock (sim time) when you have one.
     """
 
     def __init__(
         self,
         config: BusConfig | None = None,
-        robot: str = DEFAULT_ROBOT,
+        robot: str = keys.DEFAULT_ROBOT,
         *,
         clock: Callable[[], float] | None = None,
+        table: keys.KeyTable | None = None,
     ) -> None:
         self.config = config if config is not None else load_bus_config()
+        self.table = table if table is not None else keys.TABLE
         self.robot = keys.validate_robot_name(robot)
         self.prefix = f"{keys.PREFIX}/{robot}/"
         self.clock: Callable[[], float] = clock or time.time
@@ -645,36 +649,44 @@ class Bus:
         return entity
 
     # pub/sub ---------------------------------------------------------------------
-    def publisher(self, topic: str, msg_type: type[M], kind: Kind = "control") -> TypedPublisher[M]:
-        """Declare a typed publisher; ``kind`` picks the QoS (see the module doc)."""
-        return self._track(TypedPublisher(self, self.key(topic), msg_type, kind))
+    def _name(self, topic: str) -> str:
+        """The table name of a relative or absolute (``qm/<robot>/...``) topic."""
+        topic = topic.strip("/")
+        return keys.parse_key(topic)[1] if topic.startswith(f"{keys.PREFIX}/") else topic
+
+    def publisher(self, topic: str) -> TypedPublisher[Any]:
+        """A publisher on ``topic``; message type and QoS kind come from its key-table row."""
+        row = self.table.topic(self._name(topic))
+        return self._track(TypedPublisher(self, self.key(topic), row.msg_type, row.kind))
 
     def subscribe(
         self,
         topic: str,
-        msg_type: type[M],
-        callback: Callable[[M], Any],
+        callback: Callable[[Any], Any],
         *,
         latest_only: bool = False,
-    ) -> TypedSubscriber[M]:
-        """Subscribe with a callback; ``topic`` may hold Zenoh wildcards (``*/heartbeat``).
+    ) -> TypedSubscriber[Any]:
+        """Subscribe with a callback; ``topic`` may hold Zenoh wildcards (``*/heartbeat``)
+        as long as every row it matches carries one message type.
 
         zenoh-python gives each subscriber its own callback thread, so subscribers never
         block each other; but samples of one subscriber queue up behind its slow callback.
         Use ``latest_only=True`` for sensor streams and for any callback that does real
         work: older samples are then dropped instead of queued.
         """
+        msg_type = self.table.message_type(self._name(topic))
         return self._track(TypedSubscriber(self, self.key(topic), msg_type, callback, latest_only))
 
-    def latest(self, topic: str, msg_type: type[M]) -> LatestCache[M]:
+    def latest(self, topic: str) -> LatestCache[Any]:
         """A latest-only cache of ``topic``: ``cache.get()`` returns the newest message."""
+        msg_type = self.table.message_type(self._name(topic))
         return self._track(LatestCache(self, self.key(topic), msg_type))
 
     def follow_clock(self, topic: str = "sim/clock") -> LatestCache[Any]:
         """Stamp this bus's own messages with robot time from ``topic`` (sim time in
         simulation): :attr:`clock` then returns the newest ``Clock`` stamp (0.0 until the
         first one). On hardware, where robot time is wall time, simply don't call it."""
-        cache = self.latest(topic, _messages().Clock)
+        cache = self.latest(topic)
 
         def robot_time() -> float:
             msg = cache.get()
@@ -710,18 +722,21 @@ class Bus:
         self,
         service: str,
         name: str,
-        goal_type: type[Message],
         execute: Callable[[GoalHandle], Message | None],
         *,
         accept: Callable[[Message], tuple[bool, str]] | None = None,
         policy: Literal["reject", "preempt", "parallel"] = "reject",
     ) -> ActionServer:
-        """Serve action ``<service>/action/<name>``; see :class:`ActionServer`."""
+        """Serve action ``<service>/action/<name>`` (a key-table row, which gives the goal
+        type); see :class:`ActionServer`."""
+        goal_type = self.table.action(service, name).goal_type
         return self._track(ActionServer(self, service, name, goal_type, execute, accept, policy))
 
     def action_client(self, service: str, name: str) -> ActionClient:
-        """A client of action ``<service>/action/<name>``; see :class:`ActionClient`."""
-        return self._track(ActionClient(self, service, name))
+        """A client of action ``<service>/action/<name>`` (a key-table row); see
+        :class:`ActionClient`."""
+        goal_type = self.table.action(service, name).goal_type
+        return self._track(ActionClient(self, service, name, goal_type))
 
     # lifecycle -------------------------------------------------------------------
     def close(self, timeout: float | None = None) -> bool:
@@ -764,12 +779,6 @@ class ActionFailed(Exception):
 
 class ActionCanceled(Exception):
     """Raise from an action's execute function to end the goal as ``canceled``."""
-
-
-def _messages() -> Any:
-    from quadmanip.common import messages
-
-    return messages
 
 
 class GoalHandle:
@@ -833,7 +842,6 @@ class ActionServer:
         self._results: OrderedDict[str, Any] = OrderedDict()
         self._goals: OrderedDict[str, Message] = OrderedDict()  # accepted ids: re-sends
         self._stopping = False
-        msgs = _messages()
         self._feedback_pub = TypedPublisher(
             bus, f"{self.base}/feedback", msgs.ActionFeedback, "event"
         )
@@ -845,11 +853,6 @@ class ActionServer:
             s.declare_queryable(f"{self.base}/status", self._on_status),
         ]
 
-    @property
-    def active_goals(self) -> list[str]:
-        with self._lock:
-            return list(self._active)
-
     def _reply(self, query: zenoh.Query, msg: Message) -> None:
         try:
             query.reply(query.key_expr, encode(msg))
@@ -857,7 +860,7 @@ class ActionServer:
             log.warning("action reply failed", key=str(query.key_expr), error=repr(exc))
 
     def _respond(self, query: zenoh.Query, goal_id: str, accepted: bool, reason: str) -> None:
-        resp = _messages().ActionResponse(
+        resp = msgs.ActionResponse(
             stamp=self._bus.clock(), goal_id=goal_id, accepted=accepted, reason=reason
         )
         self._reply(query, resp)
@@ -870,7 +873,6 @@ class ActionServer:
         return (True, "") if self._goals[gid] == goal else (False, "duplicate goal_id")
 
     def _on_goal(self, query: zenoh.Query) -> None:
-        msgs = _messages()
         with query:
             payload = query.payload
             try:
@@ -954,7 +956,7 @@ class ActionServer:
                 error=repr(exc),
                 exc_info=True,
             )
-        msg = _messages().ActionResult(
+        msg = msgs.ActionResult(
             stamp=self._bus.clock(),
             goal_id=handle.goal_id,
             status=status,
@@ -976,7 +978,7 @@ class ActionServer:
             log.warning("publishing action result failed", error=repr(exc))
 
     def _publish_feedback(self, goal_id: str, progress: float, text: str) -> None:
-        msg = _messages().ActionFeedback(
+        msg = msgs.ActionFeedback(
             stamp=self._bus.clock(), goal_id=goal_id, progress=float(progress), text=text
         )
         try:
@@ -991,7 +993,6 @@ class ActionServer:
             )
 
     def _on_cancel(self, query: zenoh.Query) -> None:
-        msgs = _messages()
         with query:
             payload = query.payload
             try:
@@ -1093,9 +1094,9 @@ class ClientGoalHandle:
 class ActionClient:
     """Sends goals to ``<service>/action/<name>``; see the module doc for the protocol."""
 
-    def __init__(self, bus: Bus, service: str, name: str) -> None:
-        msgs = _messages()
+    def __init__(self, bus: Bus, service: str, name: str, goal_type: type[Message]) -> None:
         self.base = keys.action_key(bus.robot, service, name)
+        self.goal_type = goal_type
         self._bus = bus
         self._lock = threading.Lock()
         self._handles: dict[str, ClientGoalHandle] = {}
@@ -1137,8 +1138,12 @@ class ActionClient:
         goal_id: str | None = None,
     ) -> ClientGoalHandle:
         """Send ``goal``; returns with ``handle.accepted`` / ``handle.reason`` set as soon as
-        a server answers, or after ``timeout`` s ("no action server answered")."""
-        msgs = _messages()
+        a server answers, or after ``timeout`` s ("no action server answered"). A goal of
+        another type than the key table's row is refused with ``TypeError``."""
+        if not isinstance(goal, self.goal_type):
+            raise TypeError(
+                f"action {self.base} takes {self.goal_type.__name__}, got {type(goal).__name__}"
+            )
         gid = goal_id or f"{uuid.uuid4().hex[:12]}-{next(self._counter)}"
         handle = ClientGoalHandle(self, gid, feedback_cb)
         with self._lock:
@@ -1165,7 +1170,6 @@ class ActionClient:
         return handle
 
     def _cancel(self, goal_id: str, timeout: float) -> bool:
-        msgs = _messages()
         data = self._query(
             f"{self.base}/cancel",
             encode(msgs.ActionCancel(stamp=self._bus.clock(), goal_id=goal_id)),
@@ -1179,7 +1183,6 @@ class ActionClient:
             return False
 
     def _poll_status(self, goal_id: str) -> Any:
-        msgs = _messages()
         try:
             data = self._query(f"{self.base}/status", None, 1.0, params=f"goal_id={goal_id}")
         except Exception:  # noqa: BLE001 - session trouble: keep waiting for the publication

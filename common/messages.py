@@ -155,10 +155,16 @@ class LegCommand(Message):
     tau_ff: np.ndarray = array("f8", (N_LEG_JOINTS,))
 
 
-@message("qm.ArmTrajectory", (1, 0))
+@message("qm.ArmTrajectory", (1, 1))
 class ArmTrajectory(Message):
     """Time-stamped arm joint trajectory (robot time ``t``, strictly increasing) that the
-    actuator layer interpolates, with PD gains for the 4 arm joints."""
+    actuator layer interpolates, with PD gains for the 4 arm joints and a feed-forward
+    torque per knot (N m; e.g. the arm's gravity torque), interpolated like the positions:
+    tau = kp (q(t) - q) + kd (dq(t) - dq) + tau_ff(t), clamped by the actuator layer.
+
+    1.1: ``tau_ff`` (N, 4) added. Left out (or sent by a 1.0 sender) it is zeros; a
+    received or constructed message always carries the full (N, 4) array.
+    """
 
     stamp: float
     t: np.ndarray = array("f8", (None,), max_elements=100_000)
@@ -166,6 +172,9 @@ class ArmTrajectory(Message):
     dq: np.ndarray = array("f8", (None, N_ARM_JOINTS), max_elements=400_000)
     kp: np.ndarray = array("f8", (N_ARM_JOINTS,), nonneg=True)
     kd: np.ndarray = array("f8", (N_ARM_JOINTS,), nonneg=True)
+    tau_ff: np.ndarray = array(
+        "f8", (None, N_ARM_JOINTS), max_elements=400_000, default=np.zeros((0, N_ARM_JOINTS))
+    )
 
     def _check(self) -> None:
         n = self.t.shape[0]
@@ -175,6 +184,12 @@ class ArmTrajectory(Message):
             raise MessageError(
                 f"ArmTrajectory: t has {n} points but q {self.q.shape[0]}, dq {self.dq.shape[0]}"
             )
+        if self.tau_ff.shape[0] == 0:  # not given: no feed-forward
+            zeros = np.zeros((n, N_ARM_JOINTS))
+            zeros.flags.writeable = False
+            self.__dict__["tau_ff"] = zeros
+        elif self.tau_ff.shape[0] != n:
+            raise MessageError(f"ArmTrajectory: t has {n} points but tau_ff {self.tau_ff.shape[0]}")
         if n > 1 and not bool(np.all(np.diff(self.t) > 0.0)):
             raise MessageError("ArmTrajectory.t must be strictly increasing")
 

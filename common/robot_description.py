@@ -7,7 +7,8 @@ dimensions, masses and limits from the model so nobody copies Table 1/Table 2 co
 
 Joint order (arrays of 16): FL(abad, hip, knee), FR, RL, RR, then arm_j1..arm_j4.
 Actuator order (17): those 16 joints, then the gripper (a force on the `gripper_gap`
-tendon, whose length is the finger gap in metres).
+tendon, whose length is the finger gap in metres). The layout (names, counts, slices) is
+defined once in :mod:`quadmanip.common.joint_layout` and re-exported here.
 """
 
 from __future__ import annotations
@@ -19,6 +20,21 @@ from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
+from quadmanip.common.joint_layout import (
+    ACTUATORS,
+    ARM_JOINTS,
+    ARM_SLICE,
+    GRIPPER_ACTUATOR,
+    JOINTS,
+    LEG_JOINT_KINDS,
+    LEG_JOINTS,
+    LEG_NAMES,
+    LEG_SLICE,
+    N_ARM_JOINTS,
+    N_JOINTS,
+    N_LEG_JOINTS,
+)
+from quadmanip.common.rotations import quat_to_mat
 from quadmanip.paths import CONFIG_DIR
 
 if TYPE_CHECKING:  # pinocchio is imported lazily: it is slow to import and only some need it
@@ -30,17 +46,24 @@ ROBOT_XML: Path = CONFIG_DIR / "robot" / "quadmanip_dog.xml"
 BASE_BODY = "base"
 FREE_JOINT = "base_free"
 TRUNK_GEOM = "trunk"
-LEG_NAMES: tuple[str, ...] = ("FL", "FR", "RL", "RR")
-LEG_JOINT_KINDS: tuple[str, ...] = ("abad", "hip", "knee")
-LEG_JOINTS: tuple[str, ...] = tuple(f"{leg}_{k}" for leg in LEG_NAMES for k in LEG_JOINT_KINDS)
-ARM_JOINTS: tuple[str, ...] = ("arm_j1", "arm_j2", "arm_j3", "arm_j4")
-JOINTS: tuple[str, ...] = LEG_JOINTS + ARM_JOINTS
-"""The 16 actuated revolute joints in the fixed wire order."""
+# The joint layout (LEG_NAMES, LEG_JOINTS, ARM_JOINTS, JOINTS, ACTUATORS, the counts and
+# slices) comes from quadmanip.common.joint_layout, imported above.
+__layout__ = (
+    ACTUATORS,
+    ARM_JOINTS,
+    ARM_SLICE,
+    GRIPPER_ACTUATOR,
+    JOINTS,
+    LEG_JOINT_KINDS,
+    LEG_JOINTS,
+    LEG_NAMES,
+    LEG_SLICE,
+    N_ARM_JOINTS,
+    N_JOINTS,
+    N_LEG_JOINTS,
+)
 GRIPPER_JOINTS: tuple[str, ...] = ("gripper_left", "gripper_right")
 GRIPPER_TENDON = "gripper_gap"
-GRIPPER_ACTUATOR = "gripper"
-ACTUATORS: tuple[str, ...] = JOINTS + (GRIPPER_ACTUATOR,)
-"""Actuator names (motors named like their joints) in actuator-index order."""
 
 FOOT_SITES: tuple[str, ...] = tuple(f"{leg}_foot" for leg in LEG_NAMES)
 FOOT_GEOMS: tuple[str, ...] = FOOT_SITES
@@ -393,7 +416,5 @@ def mujoco_qvel_to_pinocchio(qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
     """
     qpos = np.asarray(qpos, dtype=float)
     v = np.asarray(qvel, dtype=float).copy()
-    rot = np.empty(9)
-    mujoco.mju_quat2Mat(rot, qpos[3:7])
-    v[0:3] = rot.reshape(3, 3).T @ v[0:3]
+    v[0:3] = quat_to_mat(qpos[3:7]).T @ v[0:3]
     return v

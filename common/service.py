@@ -17,11 +17,15 @@ SIGINT. The stop is bounded: after the signal the process exits within ``STOP_BU
 (2 s) whatever the service code does (signals are read from a wakeup fd by a dedicated
 thread, and a watchdog ends a stuck process with exit code 1; a second signal ends it at once).
 
-Inputs and outputs are declared, not just used: :meth:`Service.subscribe` and
-:meth:`Service.publisher` refuse topics that are not declared, so the declaration
-(``--describe`` prints it as JSON) is always the true wiring diagram of the node.
+Inputs, outputs and actions are declared by naming rows of the key table
+(:mod:`quadmanip.common.keys`), which alone gives each topic's message type and QoS kind
+and each action's goal type. :meth:`Service.check_declarations` refuses a declaration that
+is not in the table (``run_service`` calls it before anything starts), and
+:meth:`Service.subscribe`, :meth:`Service.publisher` and :meth:`Service.action_server`
+refuse what is not declared, so the declaration (``--describe`` prints it as JSON) is
+always the true wiring diagram of the node.
 
-Example::
+Example (a test service whose topics come from an extended table)::
 
     @dataclass(frozen=True)
     class EchoConfig:
@@ -30,8 +34,11 @@ Example::
     class Echo(Service):
         name = "echo"
         config_type = EchoConfig
-        inputs = (Input("sim/clock", Clock),)
-        outputs = (Output("echo/clock", Clock, kind="event"),)
+        key_table = keys.TABLE.extended(
+            (keys.row("echo", "clock", Clock, "event", "out", "echoed clock"),)
+        )
+        inputs = (Input("sim/clock"),)
+        outputs = (Output("echo/clock"),)
 
         def setup(self) -> None:
             self.pub = self.publisher("echo/clock")
@@ -54,7 +61,17 @@ import tomllib
 from collections.abc import Callable, Sequence
 from typing import Any, ClassVar, Literal
 
-from quadmanip.common.bus import Bus, BusConfig, Kind, TypedPublisher, TypedSubscriber, apply_env
+from quadmanip.common import keys
+from quadmanip.common.bus import (
+    ActionServer,
+    Bus,
+    BusConfig,
+    GoalHandle,
+    LatestCache,
+    TypedPublisher,
+    TypedSubscriber,
+    apply_env,
+)
 from quadmanip.common.config import (
     ConfigError,
     config_path,
@@ -84,21 +101,19 @@ State = Literal["starting", "running", "degraded", "stopping", "stopped", "faile
 
 @dataclasses.dataclass(frozen=True)
 class Input:
-    """A declared subscription: relative key, message type, latest-only delivery."""
+    """A declared subscription: a topic of the key table (or a wildcard over rows of one
+    message type, such as ``*/heartbeat``), and whether only the newest sample matters."""
 
     topic: str
-    msg_type: type[Message]
     latest_only: bool = False
     doc: str = ""
 
 
 @dataclasses.dataclass(frozen=True)
 class Output:
-    """A declared publication: relative key, message type, QoS kind."""
+    """A declared publication: a topic of the key table (type and kind come from its row)."""
 
     topic: str
-    msg_type: type[Message]
-    kind: Kind = "control"
     doc: str = ""
 
 
@@ -117,7 +132,9 @@ class Service:
     config_name: ClassVar[str | None] = None
     inputs: ClassVar[Sequence[Input]] = ()
     outputs: ClassVar[Sequence[Output]] = ()
-    actions: ClassVar[Sequence[str]] = ()  # action names served, for --describe
+    actions: ClassVar[Sequence[str]] = ()  # actions served: "<name>/action/<action>" rows
+    # The table the declarations name rows of; only tests and benchmarks extend it.
+    key_table: ClassVar[keys.KeyTable] = keys.TABLE
     # If set, the default run() calls step() at this period (seconds, wall clock).
     loop_period: ClassVar[float | None] = None
 
@@ -136,8 +153,35 @@ class Service:
         """Override to add service-specific command-line flags."""
 
     @classmethod
+    def check_declarations(cls) -> None:
+        """Raise ``ValueError`` naming every declared input, output or action that is not a
+        row of :attr:`key_table` (``run_service`` calls this before anything starts)."""
+        problems = []
+        for inp in cls.inputs:
+            try:
+                cls.key_table.message_type(inp.topic)
+            except KeyError as exc:
+                problems.append(f"input: {exc}")
+        for out in cls.outputs:
+            try:
+                cls.key_table.topic(out.topic)
+            except KeyError as exc:
+                problems.append(f"output: {exc}")
+            if "*" in out.topic:
+                problems.append(f"output {out.topic!r}: a publication names one topic")
+        for action in cls.actions:
+            try:
+                cls.key_table.action(cls.name, action)
+            except KeyError as exc:
+                problems.append(f"action: {exc}")
+        if problems:
+            raise ValueError(f"service {cls.name!r} declares what the key table lacks: {problems}")
+
+    @classmethod
     def describe(cls) -> dict[str, Any]:
-        """Inputs, outputs and actions as plain data (``--describe``)."""
+        """Inputs, outputs and actions as plain data (``--describe``), types and kinds as
+        the key table gives them."""
+        table = cls.key_table
 
         def schema(t: type[Message]) -> str:
             version = getattr(t, "VERSION", "?")
@@ -151,17 +195,28 @@ class Service:
             "inputs": [
                 {
                     "topic": i.topic,
-                    "type": schema(i.msg_type),
+                    "type": schema(table.message_type(i.topic)),
                     "latest_only": i.latest_only,
                     "doc": i.doc,
                 }
                 for i in cls.inputs
             ],
             "outputs": [
-                {"topic": o.topic, "type": schema(o.msg_type), "kind": o.kind, "doc": o.doc}
+                {
+                    "topic": o.topic,
+                    "type": schema(table.topic(o.topic).msg_type),
+                    "kind": table.topic(o.topic).kind,
+                    "doc": o.doc,
+                }
                 for o in cls.outputs
             ],
-            "actions": [f"{cls.name}/action/{a}" for a in cls.actions],
+            "actions": [
+                {
+                    "action": table.action(cls.name, a).name,
+                    "goal": schema(table.action(cls.name, a).goal_type),
+                }
+                for a in cls.actions
+            ],
             "heartbeat": f"{cls.name}/heartbeat",
             "liveliness": f"{cls.name}/alive",
         }
@@ -175,22 +230,37 @@ class Service:
         raise KeyError(f"{self.name}: {what} {topic!r} is not declared (declared: {known})")
 
     def publisher(self, topic: str) -> TypedPublisher[Any]:
-        """A publisher for a declared output (type and QoS from the declaration)."""
-        out = self._declared(self.outputs, topic, "output")
-        return self.bus.publisher(topic, out.msg_type, kind=out.kind)
+        """A publisher for a declared output (type and QoS from the key table)."""
+        self._declared(self.outputs, topic, "output")
+        return self.bus.publisher(topic)
 
     def subscribe(
         self, topic: str, callback: Callable[[Any], Any], *, latest_only: bool | None = None
     ) -> TypedSubscriber[Any]:
-        """Subscribe to a declared input (type and delivery from the declaration)."""
+        """Subscribe to a declared input (type from the key table, delivery from the
+        declaration)."""
         inp = self._declared(self.inputs, topic, "input")
         lo = inp.latest_only if latest_only is None else latest_only
-        return self.bus.subscribe(topic, inp.msg_type, callback, latest_only=lo)
+        return self.bus.subscribe(topic, callback, latest_only=lo)
 
-    def latest(self, topic: str) -> Any:
+    def latest(self, topic: str) -> LatestCache[Any]:
         """A latest-only cache of a declared input."""
-        inp = self._declared(self.inputs, topic, "input")
-        return self.bus.latest(topic, inp.msg_type)
+        self._declared(self.inputs, topic, "input")
+        return self.bus.latest(topic)
+
+    def action_server(
+        self,
+        action: str,
+        execute: Callable[[GoalHandle], Message | None],
+        *,
+        accept: Callable[[Message], tuple[bool, str]] | None = None,
+        policy: Literal["reject", "preempt", "parallel"] = "reject",
+    ) -> ActionServer:
+        """Serve a declared action ``<name>/action/<action>`` (goal type from the table)."""
+        if action not in self.actions:
+            known = ", ".join(self.actions) or "none"
+            raise KeyError(f"{self.name}: action {action!r} is not declared (declared: {known})")
+        return self.bus.action_server(self.name, action, execute, accept=accept, policy=policy)
 
     # --- lifecycle (override these) ------------------------------------------------
     def setup(self) -> None:
@@ -282,7 +352,7 @@ class _Heartbeat:
         self._svc = service
         self._period = period
         self._stop = threading.Event()
-        self._pub = service.bus.publisher(f"{service.name}/heartbeat", Heartbeat, kind="event")
+        self._pub = service.bus.publisher(f"{service.name}/heartbeat")
         self._seq = 0
         self._thread = threading.Thread(target=self._loop, name="heartbeat", daemon=True)
 
@@ -340,7 +410,9 @@ def build_parser(cls: type[Service]) -> argparse.ArgumentParser:
     p.add_argument("--bus-config", default="bus", help="bus config name or path")
     p.add_argument("--connect", help="comma-separated Zenoh endpoints (like QM_ZENOH_CONNECT)")
     p.add_argument("--mode", choices=("peer", "client"), help="Zenoh session mode")
-    p.add_argument("--robot", default=os.environ.get("QM_ROBOT", "dog1"), help="robot name")
+    p.add_argument(
+        "--robot", default=os.environ.get("QM_ROBOT", keys.DEFAULT_ROBOT), help="robot name"
+    )
     p.add_argument("--log-level", help="DEBUG, INFO, WARNING (default QM_LOG_LEVEL or INFO)")
     p.add_argument(
         "--describe", action="store_true", help="print the declared inputs/outputs as JSON and exit"
@@ -365,11 +437,16 @@ def run_service(
         raise TypeError(f"{cls.__name__}.name is empty")
     parser = build_parser(cls)
     args = parser.parse_args(list(sys.argv[1:] if argv is None else argv))
+    configure_logging(cls.name, level=args.log_level)
+    log = get_logger(f"{cls.name}.runtime")
+    try:
+        cls.check_declarations()
+    except ValueError as exc:
+        log.error("declaration does not match the key table", error=str(exc))
+        return 2
     if args.describe:
         print(json.dumps(cls.describe(), indent=2))
         return 0
-    configure_logging(cls.name, level=args.log_level)
-    log = get_logger(f"{cls.name}.runtime")
     try:
         config = _load_service_config(cls, args.config, _parse_set(args.set))
         if bus_config is None:
@@ -443,7 +520,7 @@ def run_service(
     heartbeat: _Heartbeat | None = None
     svc: Service | None = None
     try:
-        bus = Bus(bus_config, robot=args.robot)
+        bus = Bus(bus_config, robot=args.robot, table=cls.key_table)
         # Follow robot time unless this service is the clock's source (the sim stamps with
         # its own engine time).
         if bus_config.robot_clock and all(o.topic != bus_config.robot_clock for o in cls.outputs):

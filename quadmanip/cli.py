@@ -16,6 +16,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from quadmanip import services_registry
+from quadmanip.common import keys
 
 # Dispatch targets named in the shared contracts: sub-command -> "module:function".
 BENCH_TARGETS: dict[str, str] = {
@@ -134,8 +135,6 @@ def _cmd_sim(args: argparse.Namespace, extra: list[str]) -> int:
 
 
 def _cmd_keys(args: argparse.Namespace, extra: list[str]) -> int:
-    from quadmanip.common import keys
-
     try:
         keys.validate_robot_name(args.robot)
     except ValueError as exc:
@@ -143,34 +142,7 @@ def _cmd_keys(args: argparse.Namespace, extra: list[str]) -> int:
         return 2
     if args.readme:
         return _update_readme(Path(args.readme), keys.render_key_table_markdown())
-    if args.markdown:
-        print(keys.render_key_table_markdown(args.robot), end="")
-        return 0
-    rows = [
-        (keys.key(args.robot, t.name), t.msg_type.__name__, t.kind, t.direction, t.doc)
-        for t in keys.TOPICS.values()
-    ]
-    rows.append(
-        (
-            f"qm/{args.robot}/<service>/action/<name>",
-            "ActionGoal...",
-            "action",
-            "in",
-            "long-running requests",
-        )
-    )
-    rows.append(
-        (
-            f"qm/{args.robot}/<service>/alive",
-            "liveliness",
-            "-",
-            "out",
-            "present while the service runs",
-        )
-    )
-    widths = [max(len(r[i]) for r in rows) for i in range(4)]
-    for r in rows:
-        print("  ".join(c.ljust(w) for c, w in zip(r[:4], widths, strict=True)) + "  " + r[4])
+    print(keys.render_key_table_markdown(args.robot), end="")
     return 0
 
 
@@ -243,7 +215,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("name", metavar="NAME", help="service name (see `quadmanip services`)")
     p.add_argument("--config", metavar="FILE", help="service config (TOML name or path)")
-    p.add_argument("--robot", metavar="NAME", help="robot name in the keys (default dog1)")
+    p.add_argument(
+        "--robot", metavar="NAME", help=f"robot name in the keys (default {keys.DEFAULT_ROBOT})"
+    )
     p.add_argument(
         "--connect",
         metavar="EP",
@@ -293,9 +267,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("args", nargs=argparse.REMAINDER, help="tool arguments (try --help)")
     p.set_defaults(func=_cmd_sim)
 
-    p = sub.add_parser("keys", help="print the key table", description="Print the key table.")
-    p.add_argument("--markdown", action="store_true", help="as a Markdown table (README)")
-    p.add_argument("--robot", default="dog1", metavar="NAME", help="robot name (default dog1)")
+    p = sub.add_parser(
+        "keys", help="print the key table", description="Print the key table (Markdown)."
+    )
+    p.add_argument(
+        "--robot",
+        default=keys.DEFAULT_ROBOT,
+        metavar="NAME",
+        help=f"robot name (default {keys.DEFAULT_ROBOT})",
+    )
     p.add_argument(
         "--readme", metavar="FILE", help="rewrite the generated table inside FILE's markers"
     )

@@ -29,6 +29,7 @@ from typing import TextIO
 
 import numpy as np
 from quadmanip import services_registry
+from quadmanip.common import keys
 from quadmanip.demo_operator import DemoOperator
 from quadmanip.launcher import Launcher, free_endpoint, install_stop_signals
 
@@ -242,7 +243,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--duration", type=float, default=25.0, help="seconds to run (default 25)")
     p.add_argument("--out", default="demo-output", help="folder for PNGs and the stack log")
-    p.add_argument("--robot", default="dog1", help="robot name (default dog1)")
+    p.add_argument(
+        "--robot", default=keys.DEFAULT_ROBOT, help=f"robot name (default {keys.DEFAULT_ROBOT})"
+    )
     p.add_argument("--listen", help="router endpoint (default: a free loopback port)")
     p.add_argument("--frames-every", type=float, default=2.0, help="s between saved frames")
     p.add_argument(
@@ -304,7 +307,14 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
         walked: float | None = None
         died = None
         try:
-            bus = Bus(BusConfig(mode="client", connect=(launcher.connect or listen,)), args.robot)
+            # The round trip's echo keys are the bus benchmark's, beside the product's.
+            from quadmanip.testbench.bench_bus import TABLE as bench_table
+
+            bus = Bus(
+                BusConfig(mode="client", connect=(launcher.connect or listen,)),
+                args.robot,
+                table=bench_table,
+            )
             monitor = BusMonitor(bus)
             writer = FrameWriter(out_dir, args.frames_every)
             roundtrip = RoundTrip(bus, launcher.connect or listen) if roundtrip_on else None

@@ -45,11 +45,11 @@ class DemoOperator:
         self._bus = bus
         self._script = script
         self._period = 1.0 / rate_hz
-        self._clock = bus.latest("sim/clock", m.Clock)  # type: ignore[attr-defined]
-        self._odom = bus.latest("locomotion/odometry", m.Odometry)  # type: ignore[attr-defined]
-        self._gt = bus.latest("sim/gt/base", m.GroundTruthPoses)  # type: ignore[attr-defined]
-        self._pub_mode = bus.publisher("locomotion/mode", m.LocomotionMode, kind="control")  # type: ignore[attr-defined]
-        self._pub_vel = bus.publisher("locomotion/cmd_vel", m.BodyVelocityCommand, kind="control")  # type: ignore[attr-defined]
+        self._clock = bus.latest("sim/clock")  # type: ignore[attr-defined]
+        self._odom = bus.latest("locomotion/odometry")  # type: ignore[attr-defined]
+        self._gt = bus.latest("sim/gt/base")  # type: ignore[attr-defined]
+        self._pub_mode = bus.publisher("locomotion/mode")  # type: ignore[attr-defined]
+        self._pub_vel = bus.publisher("locomotion/cmd_vel")  # type: ignore[attr-defined]
         self._t0: float | None = None
         self._step = -1
         self._gt_start: np.ndarray | None = None

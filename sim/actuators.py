@@ -9,9 +9,11 @@ the robot (ARCHITECTURE.md, "Honest simulation").
   time the legs fall back to damping, ``tau = -kd_damp dq``, the safety mode real robots
   use when their controller dies. The layer starts in damping: a robot whose controller
   is not running does not hold itself up.
-* Arm: time-stamped joint trajectories (t[N], q[N,4], dq[N,4], kp, kd), interpolated with
-  cubic Hermite splines at every physics step, so the arm is smooth whatever rate its
-  owner publishes at. After the last knot the last point is held. A new trajectory
+* Arm: time-stamped joint trajectories (t[N], q[N,4], dq[N,4], kp, kd, tau_ff[N,4]),
+  positions interpolated with cubic Hermite splines and feed-forward torques linearly at
+  every physics step, so the arm is smooth whatever rate its owner publishes at:
+  ``tau = kp (q(t) - q) + kd (dq(t) - dq) + tau_ff(t)`` (the owner sends e.g. the arm's
+  gravity torque as tau_ff). After the last knot the last point is held. A new trajectory
   replaces the old one from its first time stamp on (the old one keeps running until
   then). Before any trajectory the arm servos hold the pose they started in.
 * Gripper: stiff position control on the finger gap, with the finger force clamped to
@@ -246,15 +248,28 @@ def hermite(
     return pos, vel
 
 
+def lerp(t: np.ndarray, y: np.ndarray, now: float) -> np.ndarray:
+    """Piecewise-linear interpolation of knot rows ``y[N, k]`` at ``now``; the first row
+    before the first knot, the last one after the last."""
+    if now <= t[0]:
+        return y[0].copy()
+    if now >= t[-1]:
+        return y[-1].copy()
+    i = int(np.searchsorted(t, now, side="right") - 1)
+    s = (now - t[i]) / (t[i + 1] - t[i])
+    return (1.0 - s) * y[i] + s * y[i + 1]
+
+
 @dataclass(frozen=True)
 class ArmSegment:
-    """One accepted arm trajectory."""
+    """One accepted arm trajectory (``tau_ff`` None: no feed-forward)."""
 
     t: np.ndarray
     q: np.ndarray
     dq: np.ndarray
     kp: np.ndarray
     kd: np.ndarray
+    tau_ff: np.ndarray | None = None
 
 
 class ActuatorLayer:
@@ -357,13 +372,16 @@ class ActuatorLayer:
         dq: np.ndarray,
         kp: np.ndarray,
         kd: np.ndarray,
+        tau_ff: np.ndarray | None = None,
     ) -> bool:
-        """Accept an arm trajectory; it takes over from its first time stamp on."""
+        """Accept an arm trajectory; it takes over from its first time stamp on.
+        ``tau_ff`` (N, 4): feed-forward torque per knot (N m), None for zeros."""
         t = np.asarray(t, dtype=float)
         q = np.asarray(q, dtype=float)
         dq = np.asarray(dq, dtype=float)
         kp = np.asarray(kp, dtype=float)
         kd = np.asarray(kd, dtype=float)
+        ff = np.zeros_like(q) if tau_ff is None else np.asarray(tau_ff, dtype=float)
         if t.ndim != 1 or len(t) < 1:
             return self._reject("arm", f"t shape {t.shape} is not (N>=1,)")
         n = len(t)
@@ -371,13 +389,17 @@ class ActuatorLayer:
             return self._reject("arm", f"q/dq shapes {q.shape}/{dq.shape} != ({n}, 4)")
         if kp.shape != (N_ARM,) or kd.shape != (N_ARM,):
             return self._reject("arm", f"kp/kd shapes {kp.shape}/{kd.shape} != (4,)")
-        if not all(np.all(np.isfinite(a)) for a in (t, q, dq, kp, kd)):
+        if ff.shape != (n, N_ARM):
+            return self._reject("arm", f"tau_ff shape {ff.shape} != ({n}, 4)")
+        if not all(np.all(np.isfinite(a)) for a in (t, q, dq, kp, kd, ff)):
             return self._reject("arm", "non-finite value")
         if np.any(kp < 0) or np.any(kd < 0):
             return self._reject("arm", "negative gain")
         if n > 1 and np.any(np.diff(t) <= 0):
             return self._reject("arm", "time stamps not strictly increasing")
-        seg = ArmSegment(t.copy(), q.copy(), dq.copy(), kp.copy(), kd.copy())
+        seg = ArmSegment(
+            t.copy(), q.copy(), dq.copy(), kp.copy(), kd.copy(), ff.copy() if ff.any() else None
+        )
         # Replace everything from this trajectory's first stamp on.
         self._arm_segments = [s for s in self._arm_segments if s.t[0] < t[0]]
         self._arm_segments.append(seg)
@@ -448,6 +470,8 @@ class ActuatorLayer:
             seg = segs[0]
             qd, dqd = hermite(seg.t, seg.q, seg.dq, now)
             tau[N_LEG:] = seg.kp * (qd - qa) + seg.kd * (dqd - dqa)
+            if seg.tau_ff is not None:
+                tau[N_LEG:] += lerp(seg.t, seg.tau_ff, now)
         else:  # no trajectory has started yet: the servos hold their start pose
             if self._arm_hold is None:
                 self._arm_hold = qa.copy()

@@ -93,9 +93,6 @@ class DisturbanceChannel:
         )
         return True
 
-    def is_active(self, now: float) -> bool:
-        return any(d.start <= now < d.end for d in self.active)
-
     def untouched_since_last_apply(self, data: mujoco.MjData) -> bool:
         """True if ``xfrc_applied`` still holds exactly what this channel wrote last (the
         honesty check: nobody else applies external forces)."""

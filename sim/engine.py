@@ -247,6 +247,7 @@ class SimEngine:
             traj.dq,
             traj.kp,
             traj.kd,
+            traj.tau_ff,
         )
 
     def apply_gripper_command(self, cmd: msg.GripperCommand) -> bool:

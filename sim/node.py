@@ -55,22 +55,22 @@ class SimNode(Service):
     name = "sim"
     config_type = SimConfig
     inputs = (
-        Input("sim/leg_command", msg.LegCommand, doc="leg PD + feed-forward, echoes tick"),
-        Input("sim/arm_trajectory", msg.ArmTrajectory, doc="arm joint trajectory"),
-        Input("sim/gripper_command", msg.GripperCommand, doc="finger gap + force limit"),
-        Input("sim/test/disturbance", msg.Disturbance, doc="TEST ONLY, needs the config flag"),
+        Input("sim/leg_command", doc="leg PD + feed-forward, echoes tick"),
+        Input("sim/arm_trajectory", doc="arm joint trajectory"),
+        Input("sim/gripper_command", doc="finger gap + force limit"),
+        Input("sim/test/disturbance", doc="TEST ONLY, needs the config flag"),
     )
     outputs = (
-        Output("sim/clock", msg.Clock, kind="sensor"),
-        Output("sim/lowstate", msg.LowState, kind="control"),
-        Output("sim/camera/front", msg.RgbdImage, kind="sensor"),
-        Output("sim/camera/gripper", msg.RgbdImage, kind="sensor"),
-        Output("sim/scan", msg.LaserScan, kind="sensor"),
-        Output("sim/gt/base", msg.GroundTruthPoses, kind="gt"),
-        Output("sim/gt/objects", msg.GroundTruthPoses, kind="gt"),
-        Output("sim/gt/drawers", msg.GroundTruthPoses, kind="gt"),
-        Output("sim/gt/contacts", msg.GroundTruthContacts, kind="gt"),
-        Output("sim/gt/judge", msg.JudgeReport, kind="gt"),
+        Output("sim/clock"),
+        Output("sim/lowstate"),
+        Output("sim/camera/front"),
+        Output("sim/camera/gripper"),
+        Output("sim/scan"),
+        Output("sim/gt/base"),
+        Output("sim/gt/objects"),
+        Output("sim/gt/drawers"),
+        Output("sim/gt/contacts"),
+        Output("sim/gt/judge"),
     )
 
     @classmethod

@@ -223,14 +223,16 @@ def bus_factory() -> Iterator[Callable[..., object]]:
 
     buses: list[Bus] = []
 
-    def open_bus(endpoint: str, mode: str = "peer", robot: str = "dog1") -> Bus:
+    def open_bus(
+        endpoint: str, mode: str = "peer", robot: str = "dog1", table: object = None
+    ) -> Bus:
         cfg = BusConfig(
             mode=mode,  # type: ignore[arg-type]
             connect=(endpoint,),
             listen=(f"tcp/{LOOPBACK}:0",) if mode == "peer" else (),
             env_override=False,
         )
-        bus = Bus(cfg, robot=robot)
+        bus = Bus(cfg, robot=robot, table=table)  # type: ignore[arg-type]
         buses.append(bus)
         return bus
 

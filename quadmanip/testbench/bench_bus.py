@@ -38,6 +38,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from quadmanip.common import keys
 from quadmanip.common.bus import Bus, BusConfig
 from quadmanip.common.messages import (
     Heartbeat,
@@ -55,6 +56,18 @@ K_PING_CMD, K_PONG_CMD = "bench/ping_cmd", "bench/pong_cmd"
 K_PING_1K, K_PONG_1K = "bench/ping_1k", "bench/pong_1k"
 K_CTL, K_CTL_REPLY, K_RGBD = "bench/ctl", "bench/ctl_reply", "bench/rgbd"
 RGBD_W, RGBD_H = 320, 240
+TABLE = keys.TABLE.extended(
+    (
+        keys.row("bench", "ping_cmd", LegCommand, "control", "in", "bus benchmark: ping"),
+        keys.row("bench", "pong_cmd", LegCommand, "control", "out", "bus benchmark: pong"),
+        keys.row("bench", "ping_1k", LaserScan, "control", "in", "bus benchmark: 1 kB ping"),
+        keys.row("bench", "pong_1k", LaserScan, "control", "out", "bus benchmark: 1 kB pong"),
+        keys.row("bench", "ctl", Heartbeat, "event", "in", "bus benchmark: echo control"),
+        keys.row("bench", "ctl_reply", Heartbeat, "event", "out", "bus benchmark: echo reply"),
+        keys.row("bench", "rgbd", RgbdImage, "sensor", "out", "bus benchmark: RGB-D stream"),
+    )
+)
+"""The product's key table plus the benchmark's own keys (under robot ``bench``)."""
 
 # Issue 2's targets: metric -> (operator, limit).
 TARGETS: dict[str, tuple[str, float]] = {
@@ -208,14 +221,14 @@ def run_echo(config: BusConfig) -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     requests: queue.SimpleQueue[Heartbeat] = queue.SimpleQueue()
-    with Bus(config, robot=ROBOT) as bus:
-        pong_cmd = bus.publisher(K_PONG_CMD, LegCommand, kind="control")
-        pong_1k = bus.publisher(K_PONG_1K, LaserScan, kind="control")
-        reply = bus.publisher(K_CTL_REPLY, Heartbeat, kind="event")
-        frames = bus.publisher(K_RGBD, RgbdImage, kind="sensor")
-        bus.subscribe(K_PING_CMD, LegCommand, pong_cmd.publish)
-        bus.subscribe(K_PING_1K, LaserScan, pong_1k.publish)
-        bus.subscribe(K_CTL, Heartbeat, requests.put)
+    with Bus(config, robot=ROBOT, table=TABLE) as bus:
+        pong_cmd = bus.publisher(K_PONG_CMD)
+        pong_1k = bus.publisher(K_PONG_1K)
+        reply = bus.publisher(K_CTL_REPLY)
+        frames = bus.publisher(K_RGBD)
+        bus.subscribe(K_PING_CMD, pong_cmd.publish)
+        bus.subscribe(K_PING_1K, pong_1k.publish)
+        bus.subscribe(K_CTL, requests.put)
         frame = rgbd_frame()
         while not stop.is_set():
             try:
@@ -242,10 +255,10 @@ class PingPong:
     """Sequential round trips on one ping/pong key pair."""
 
     def __init__(self, bus: Bus, ping_key: str, pong_key: str, msg_type: type[Message]) -> None:
-        self.pub = bus.publisher(ping_key, msg_type, kind="control")
+        self.pub = bus.publisher(ping_key)
         self.replies: queue.SimpleQueue[tuple[float, float]] = queue.SimpleQueue()
         self.msg_type = msg_type
-        bus.subscribe(pong_key, msg_type, self._on_pong)
+        bus.subscribe(pong_key, self._on_pong)
 
     def _on_pong(self, msg: Message) -> None:
         self.replies.put((time.perf_counter(), msg.stamp))
@@ -339,7 +352,7 @@ def measure_mode(mode: str, args: argparse.Namespace) -> dict[str, Any]:
                 raise RuntimeError(f"router did not come up on {ep}")
             mine = BusConfig(mode="client", connect=(ep,))
             echo_args = ["--echo", "--mode", "client", "--connect", ep]
-        with Bus(mine, robot=ROBOT) as bus:
+        with Bus(mine, robot=ROBOT, table=TABLE) as bus:
             echo = _spawn(echo_args)
             out: dict[str, Any] = {"endpoint": ep}
             cmd = PingPong(bus, K_PING_CMD, K_PONG_CMD, LegCommand)
@@ -374,9 +387,9 @@ def measure_rgbd(bus: Bus, seconds: float, mode: str) -> dict[str, Any]:
     """Ask the echo side to stream frames for ``seconds``; count frames decoded here."""
     times: list[float] = []
     done: queue.SimpleQueue[Heartbeat] = queue.SimpleQueue()
-    bus.subscribe(K_RGBD, RgbdImage, lambda _m: times.append(time.perf_counter()))
-    bus.subscribe(K_CTL_REPLY, Heartbeat, done.put)
-    ctl = bus.publisher(K_CTL, Heartbeat, kind="event")
+    bus.subscribe(K_RGBD, lambda _m: times.append(time.perf_counter()))
+    bus.subscribe(K_CTL_REPLY, done.put)
+    ctl = bus.publisher(K_CTL)
     time.sleep(0.3)  # let the new subscriptions reach the echo process
     progress(f"{mode}: streaming {RGBD_W}x{RGBD_H} RGB-D frames for {seconds:.1f} s")
     ctl.publish(Heartbeat(stamp=0.0, service="bench", seq=int(seconds * 1000), state="rgbd"))

@@ -291,13 +291,13 @@ def run_zenoh(segment_s: float = SEGMENT_S) -> dict[str, Any]:
                 with lock:
                     clock_wall.append((time.perf_counter(), msg.stamp))
 
-            bus.subscribe("sim/gt/base", m.GroundTruthPoses, on_gt)
-            bus.subscribe("sim/leg_command", m.LegCommand, on_leg)
-            bus.subscribe("sim/clock", m.Clock, on_clock)
-            odom = bus.latest("locomotion/odometry", m.Odometry)
-            pub_mode = bus.publisher("locomotion/mode", m.LocomotionMode)
-            pub_vel = bus.publisher("locomotion/cmd_vel", m.BodyVelocityCommand)
-            pub_push = bus.publisher("sim/test/disturbance", m.Disturbance)
+            bus.subscribe("sim/gt/base", on_gt)
+            bus.subscribe("sim/leg_command", on_leg)
+            bus.subscribe("sim/clock", on_clock)
+            odom = bus.latest("locomotion/odometry")
+            pub_mode = bus.publisher("locomotion/mode")
+            pub_vel = bus.publisher("locomotion/cmd_vel")
+            pub_push = bus.publisher("sim/test/disturbance")
 
             def now() -> float:
                 with lock:

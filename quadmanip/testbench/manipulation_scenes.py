@@ -240,8 +240,9 @@ class SimHarness:
         now = float(self.data.time)
         for c in cmds:
             if isinstance(c, ArmCommand):
-                q_cmd = self.gravity.offset_knots(c.traj, kp)  # as the node sends it
-                ok = self.act.set_arm_trajectory(now, c.traj.t, q_cmd, c.traj.dq, kp, kd)
+                tr = c.traj
+                tau_ff = self.gravity.feed_forward(tr.q)  # as the manipulation node sends it
+                ok = self.act.set_arm_trajectory(now, tr.t, tr.q, tr.dq, kp, kd, tau_ff)
                 if not ok:
                     raise RuntimeError(
                         f"actuator layer rejected a trajectory: {self.act.reject_reasons}"

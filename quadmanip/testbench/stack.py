@@ -160,13 +160,13 @@ class StackRun:
     def _wire(self) -> None:
         bus = self.bus
         assert bus is not None
-        self.objs = bus.latest("sim/gt/objects", m.GroundTruthPoses)
-        self.base = bus.latest("sim/gt/base", m.GroundTruthPoses)
-        self.drawers = bus.latest("sim/gt/drawers", m.GroundTruthPoses)
-        self.judge = bus.latest("sim/gt/judge", m.JudgeReport)
-        self.clock = bus.latest("sim/clock", m.Clock)
-        self.payload = bus.latest("locomotion/payload", m.Payload)
-        self.vel = bus.publisher("locomotion/cmd_vel", m.BodyVelocityCommand)
+        self.objs = bus.latest("sim/gt/objects")
+        self.base = bus.latest("sim/gt/base")
+        self.drawers = bus.latest("sim/gt/drawers")
+        self.judge = bus.latest("sim/gt/judge")
+        self.clock = bus.latest("sim/clock")
+        self.payload = bus.latest("locomotion/payload")
+        self.vel = bus.publisher("locomotion/cmd_vel")
         self.actions = {
             n: bus.action_client("manipulation", n)
             for n in ("grasp", "place", "open_drawer", "move_to_posture")

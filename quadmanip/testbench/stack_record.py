@@ -62,7 +62,7 @@ class StackFilm:
     def start(self, s: StackRun) -> None:
         """Begin sampling ``s`` (call after the stack is up)."""
         assert s.bus is not None
-        self._low = s.bus.latest("sim/lowstate", m.LowState)
+        self._low = s.bus.latest("sim/lowstate")
         self._s = s
         self._thread = threading.Thread(target=self._loop, name="stack-film", daemon=True)
         self._thread.start()

@@ -26,6 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from quadmanip.common.rotations import wrap_angle, yaw_from_quat
 
 
 @dataclass(frozen=True)
@@ -61,17 +62,6 @@ def integrate_quat(q: np.ndarray, w_body: np.ndarray, dt: float) -> np.ndarray:
     """Eq. (12): q(t+Δt) = (I + ½ Ω Δt) q(t), renormalised."""
     q_new = (np.eye(4) + 0.5 * omega_matrix(w_body) * dt) @ np.asarray(q, dtype=float)
     return q_new / np.linalg.norm(q_new)
-
-
-def quat_to_yaw(q: np.ndarray) -> float:
-    """Yaw (ZYX) of a quaternion [w, x, y, z]."""
-    w, x, y, z = q
-    return float(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
-
-
-def wrap(a: np.ndarray | float) -> np.ndarray | float:
-    """Wrap angles to (-π, π]."""
-    return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi
 
 
 def fsm_plan(
@@ -141,7 +131,7 @@ class ComReference:
     @property
     def yaw_target(self) -> float:
         """Yaw of the target orientation."""
-        return quat_to_yaw(self.q_target)
+        return yaw_from_quat(self.q_target)
 
     def advance(
         self,
@@ -167,7 +157,7 @@ class ComReference:
         d = float(np.linalg.norm(lead))
         if d > pr.max_lead:
             self.p_target[:2] = np.asarray(position[:2]) + lead * (pr.max_lead / d)
-        dy = float(wrap(self.yaw_target - yaw))
+        dy = float(wrap_angle(self.yaw_target - yaw))
         if abs(dy) > pr.max_lead_yaw:
             yt = yaw + np.sign(dy) * pr.max_lead_yaw
             self.q_target = np.array([np.cos(yt / 2), 0.0, 0.0, np.sin(yt / 2)])
@@ -185,7 +175,7 @@ class ComReference:
         """Algorithm 7 over the horizon → x_ref (horizon, 12) = [Θ, p, ω, v] for the MPC."""
         pr = self.params
         yaw = float(rpy[2])
-        yaw_des = yaw + float(wrap(self.yaw_target - yaw))  # unwrap around the current yaw
+        yaw_des = yaw + float(wrap_angle(self.yaw_target - yaw))  # unwrap around the current yaw
         pose = np.array([position[0], position[1], position[2], rpy[0], rpy[1], yaw])
         vel = np.array(
             [velocity[0], velocity[1], velocity[2], omega_world[0], omega_world[1], omega_world[2]]

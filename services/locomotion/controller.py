@@ -19,16 +19,12 @@ import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from quadmanip.common.rotations import quat_to_mat, rpy_from_mat
 from quadmanip.services.locomotion.com_reference import ComReference, FsmParams
 from quadmanip.services.locomotion.convex_mpc import ConvexMpc, MpcParams, MpcWeights
 from quadmanip.services.locomotion.gait import GaitParams, TrotGait
 from quadmanip.services.locomotion.leg_kinematics import LegKinematics
-from quadmanip.services.locomotion.state_estimator import (
-    EstimatorParams,
-    StateEstimator,
-    quat_to_rot,
-    rot_to_rpy,
-)
+from quadmanip.services.locomotion.state_estimator import EstimatorParams, StateEstimator
 from quadmanip.services.locomotion.swing_leg import SwingParams, swing_profile, touchdown_target
 
 MODES = ("damp", "sit", "stand", "walk")
@@ -309,12 +305,6 @@ class LocomotionController:
                 raise CommandError(f"body pose {name} out of range: {p.tolist()}")
         self.body_pose = p
 
-    def set_held_mass(self, mass: float) -> None:
-        """Mass of the object in the gripper (kg), included in the MPC's model."""
-        if not (math.isfinite(mass) and 0.0 <= mass <= 2.0):
-            raise CommandError(f"held mass {mass} out of range [0, 2] kg")
-        self.held_mass = float(mass)
-
     # ------------------------------------------------------------------ transitions
     def _start_interp(self, phase: str) -> None:
         self.phase = phase
@@ -330,7 +320,7 @@ class LocomotionController:
     def _enter_balance(self, quat: np.ndarray) -> None:
         self.phase = "balance"
         self.est.reset(quat, self.kin.foot_pos)
-        rpy = rot_to_rpy(quat_to_rot(quat))
+        rpy = rpy_from_mat(quat_to_mat(quat))
         self.ref.reset(self.est.position, float(rpy[2]))
         self._stand_yaw = float(rpy[2])
         self.body_pose = np.zeros(6)
@@ -411,7 +401,7 @@ class LocomotionController:
         # Estimator.
         foot_vel = self.kin.foot_velocities(dq16[:12])
         # Stance feet roll: their centres move by ω_calf × r·up, which is not base motion.
-        up_b = quat_to_rot(quat)[2, :]  # world z in the base frame
+        up_b = quat_to_mat(quat)[2, :]  # world z in the base frame
         roll = self.kin.rolling_velocities(
             dq16[:12], np.asarray(gyro, float), up_b, cfg.estimator.foot_radius
         )
@@ -419,7 +409,7 @@ class LocomotionController:
             dt, quat, gyro, accel, self.kin.foot_pos, foot_vel - roll, contact.astype(float)
         )
         r = self.est.R
-        rpy = rot_to_rpy(r)
+        rpy = rpy_from_mat(r)
         self.last_rpy = rpy
         pos = self.est.position
         vel = self.est.velocity

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import piqp
+from quadmanip.common.rotations import rot_z, skew
 
 NX = 13  # Θ(3) p(3) ω(3) v(3) g(1)
 NU = 12  # 4 feet × 3 force components
@@ -72,25 +73,6 @@ class MpcSolution:
     def first(self) -> np.ndarray:
         """Forces of the first step (4, 3): what the stance legs apply now."""
         return self.forces[0]
-
-
-def skew(v: np.ndarray) -> np.ndarray:
-    """Cross-product matrices for a stack of vectors (..., 3) → (..., 3, 3)."""
-    v = np.asarray(v, dtype=float)
-    out = np.zeros(v.shape[:-1] + (3, 3))
-    out[..., 0, 1] = -v[..., 2]
-    out[..., 0, 2] = v[..., 1]
-    out[..., 1, 0] = v[..., 2]
-    out[..., 1, 2] = -v[..., 0]
-    out[..., 2, 0] = -v[..., 1]
-    out[..., 2, 1] = v[..., 0]
-    return out
-
-
-def rot_z(yaw: float) -> np.ndarray:
-    """Rotation about z."""
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def desired_forces(foot_rel: np.ndarray, contact: np.ndarray, mass: float) -> np.ndarray:

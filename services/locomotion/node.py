@@ -19,6 +19,7 @@ import threading
 
 import numpy as np
 from quadmanip.common import messages as m
+from quadmanip.common.rotations import mat_to_quat
 from quadmanip.common.service import Input, Output, Service, run_service
 from quadmanip.services.locomotion.controller import (
     CommandError,
@@ -35,16 +36,16 @@ class LocomotionNode(Service):
     config_type = LocomotionConfig
     config_name = "locomotion"
     inputs = (
-        Input("sim/lowstate", m.LowState, doc="500 Hz encoders + IMU"),
-        Input("locomotion/cmd_vel", m.BodyVelocityCommand, doc="body velocity (base frame)"),
-        Input("locomotion/body_pose", m.BodyPoseCommand, doc="body pose offsets (standing)"),
-        Input("locomotion/mode", m.LocomotionMode, doc="stand/sit/damp/walk"),
-        Input("locomotion/payload", m.Payload, doc="mass held in the gripper"),
+        Input("sim/lowstate", doc="500 Hz encoders + IMU"),
+        Input("locomotion/cmd_vel", doc="body velocity (base frame)"),
+        Input("locomotion/body_pose", doc="body pose offsets (standing)"),
+        Input("locomotion/mode", doc="stand/sit/damp/walk"),
+        Input("locomotion/payload", doc="mass held in the gripper"),
     )
     outputs = (
-        Output("sim/leg_command", m.LegCommand, kind="control"),
-        Output("locomotion/odometry", m.Odometry, kind="sensor"),
-        Output("locomotion/debug", m.LocomotionDebug, kind="sensor"),
+        Output("sim/leg_command"),
+        Output("locomotion/odometry"),
+        Output("locomotion/debug"),
     )
 
     def setup(self) -> None:
@@ -157,7 +158,7 @@ class LocomotionNode(Service):
     def _odometry(self, stamp: float) -> m.Odometry:
         est = self.ctl.est
         r = est.R
-        q = rot_to_quat(r)
+        q = mat_to_quat(r)
         return m.Odometry(
             stamp=stamp,
             position=est.position,
@@ -186,26 +187,6 @@ def held_mass(payload: m.Payload | None, js: m.JointState, opt: NodeOptions) -> 
         return float(payload.mass)
     holding = js.gripper_effort > opt.grip_effort_threshold and js.gripper_gap > opt.grip_min_gap
     return opt.held_object_mass if holding else 0.0
-
-
-def rot_to_quat(r: np.ndarray) -> np.ndarray:
-    """Rotation matrix → unit quaternion [w, x, y, z] (Shepperd's method)."""
-    tr = float(np.trace(r))
-    if tr > 0.0:
-        s = math.sqrt(tr + 1.0) * 2.0
-        q = [0.25 * s, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s]
-    elif r[0, 0] > r[1, 1] and r[0, 0] > r[2, 2]:
-        s = math.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2]) * 2.0
-        q = [(r[2, 1] - r[1, 2]) / s, 0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s]
-    elif r[1, 1] > r[2, 2]:
-        s = math.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2]) * 2.0
-        q = [(r[0, 2] - r[2, 0]) / s, (r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s]
-    else:
-        s = math.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1]) * 2.0
-        q = [(r[1, 0] - r[0, 1]) / s, (r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s]
-    qa = np.asarray(q)
-    qa = qa / np.linalg.norm(qa)
-    return qa if qa[0] >= 0 else -qa
 
 
 def main(argv: list[str]) -> int:

@@ -20,6 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from quadmanip.common.rotations import quat_to_mat
 
 GRAVITY_VEC = np.array([0.0, 0.0, -9.81])
 
@@ -37,26 +38,6 @@ class EstimatorParams:
     foot_height_noise: float = 0.02  # m, stance foot on the floor
     swing_factor: float = 1000.0  # noise multiplier for feet not in stance
     foot_radius: float = 0.02  # m, the foot sphere sits this high on the floor
-
-
-def quat_to_rot(q: np.ndarray) -> np.ndarray:
-    """Rotation matrix of a unit quaternion [w, x, y, z]."""
-    w, x, y, z = (float(v) for v in q / np.linalg.norm(q))
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
-def rot_to_rpy(r: np.ndarray) -> np.ndarray:
-    """ZYX Euler angles (roll, pitch, yaw) of a rotation matrix."""
-    pitch = -np.arcsin(np.clip(r[2, 0], -1.0, 1.0))
-    roll = np.arctan2(r[2, 1], r[2, 2])
-    yaw = np.arctan2(r[1, 0], r[0, 0])
-    return np.array([roll, pitch, yaw])
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -92,7 +73,7 @@ class StateEstimator:
         self, quat: np.ndarray, foot_rel_body: np.ndarray, height: float | None = None
     ) -> None:
         """Start at the odom origin (x, y = 0) with the base height from leg kinematics."""
-        self.R = quat_to_rot(np.asarray(quat, dtype=float))
+        self.R = quat_to_mat(np.asarray(quat, dtype=float))
         feet_w = (self.R @ foot_rel_body.T).T
         z = (
             height
@@ -135,7 +116,7 @@ class StateEstimator:
         pr = self.params
         if not self.initialised:
             self.reset(quat, foot_rel_body)
-        r = quat_to_rot(np.asarray(quat, dtype=float))
+        r = quat_to_mat(np.asarray(quat, dtype=float))
         self.R = r
         self.omega_body = np.asarray(gyro, dtype=float)
         a_world = r @ np.asarray(accel, dtype=float) + GRAVITY_VEC

@@ -8,6 +8,7 @@ from quadmanip.common.config import load_config
 from quadmanip.services.manipulation.gripper import GripperConfig
 
 __all__ = [
+    "ExecutiveConfig",
     "GraspConfig",
     "ManipulationConfig",
     "MotionConfig",
@@ -92,6 +93,28 @@ class GraspConfig:
 
 
 @dataclass(frozen=True)
+class ExecutiveConfig:
+    """Goal arbitration and policy of the manipulation executive (``[executive]``)."""
+
+    # Hang of a held object below the tool centre (m) when the grasp goal gives none and
+    # it cannot be measured (see Executive: hang estimate).
+    default_hang: float = 0.05
+    # A vertical grasp point lower than this above the floor (m) is a floor grasp, whose
+    # hang is measured as its height: the house's tables are 40 cm high, the tallest
+    # object (the cracker box) 21 cm.
+    floor_grasp_max_z: float = 0.30
+    # While holding, the payload is repeated this often (s) for a locomotion started later.
+    payload_period: float = 1.0
+    # Odometry older than this (s, robot time) is not used for the body-drift correction.
+    odom_max_age: float = 0.5
+    # An accepted goal whose execution has not started within this (s, wall clock) frees
+    # the slot again (the action server refused it after the accept, e.g. shutting down).
+    claim_timeout: float = 2.0
+    # After a cancel request, how long (s, wall clock) to wait for the arm to stop.
+    cancel_wait: float = 2.0
+
+
+@dataclass(frozen=True)
 class ManipulationConfig:
     """Everything the manipulation service is configured with."""
 
@@ -99,6 +122,7 @@ class ManipulationConfig:
     gripper: GripperConfig = field(default_factory=GripperConfig)
     grasp: GraspConfig = field(default_factory=GraspConfig)
     postures: dict[str, PostureSpec] = field(default_factory=dict)
+    executive: ExecutiveConfig = field(default_factory=ExecutiveConfig)
     heartbeat_period: float = 0.5
 
     def __post_init__(self) -> None:

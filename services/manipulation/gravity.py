@@ -1,12 +1,14 @@
-"""Gravity compensation of the arm through its position servos.
+"""Static gravity torques of the arm, sent as feed-forward with every trajectory knot.
 
-The arm is commanded with PD gains only (the ArmTrajectory message has no feed-forward
-torque), so a pure PD servo sags by ``G(q) / kp`` under its own weight: about 1 cm at the
-tool with the arm stretched out, enough to push a light cup instead of pinching its rim.
-Like the position offset a real servo's integrator settles to, every knot is sent as
-``q + G(q) / kp`` where ``G`` is the arm's static gravity torque computed with pinocchio on
-the robot description (trunk level, body at rest); the steady state then sits on the
-planned joints. The load in the gripper is not modelled (a 0.35 kg can adds ~2 mm).
+A pure PD servo sags by ``G(q) / kp`` under the arm's own weight: about 1 cm at the tool
+with the arm stretched out, enough to push a light cup instead of pinching its rim. Like a
+real arm's controller, the manipulation service therefore sends the static gravity torque
+``G(q)`` of every planned knot as the knot's feed-forward torque (``ArmTrajectory.tau_ff``);
+the actuator layer interpolates it along the trajectory and adds it to the PD torque, so the
+servos hold the planned joints with no position error to make up for the weight.
+
+``G`` is computed with pinocchio on the robot description, trunk level and body at rest.
+The load in the gripper is not modelled (a 0.35 kg can adds ~2 mm of sag at the tool).
 """
 
 from __future__ import annotations
@@ -16,24 +18,20 @@ from collections.abc import Sequence
 import numpy as np
 import pinocchio as pin
 from quadmanip.common import robot_description as rd
-from quadmanip.services.manipulation.trajectory import JointTrajectory
 
 __all__ = ["GravityCompensator"]
 
-_ARM = ("arm_j1", "arm_j2", "arm_j3", "arm_j4")
-
 
 class GravityCompensator:
-    """Static arm gravity torques from the description, and the servo offsets they need."""
+    """Static arm gravity torques from the robot description."""
 
     def __init__(self) -> None:
         self.model, self.data = rd.load_pinocchio_model()
         self._q = pin.neutral(self.model)
-        self._iq = [self.model.joints[self.model.getJointId(n)].idx_q for n in _ARM]
-        self._iv = [self.model.joints[self.model.getJointId(n)].idx_v for n in _ARM]
-        home = rd.home_qpos()
-        q_pin = rd.mujoco_qpos_to_pinocchio(home)
-        self._q[:] = q_pin
+        arm = rd.ARM_JOINTS
+        self._iq = [self.model.joints[self.model.getJointId(n)].idx_q for n in arm]
+        self._iv = [self.model.joints[self.model.getJointId(n)].idx_v for n in arm]
+        self._q[:] = rd.mujoco_qpos_to_pinocchio(rd.home_qpos())
         # trunk level at the origin: only its orientation matters for gravity
         self._q[:3] = 0.0
         self._q[3:7] = (0.0, 0.0, 0.0, 1.0)
@@ -44,10 +42,7 @@ class GravityCompensator:
         g = pin.computeGeneralizedGravity(self.model, self.data, self._q)
         return np.asarray(g[self._iv], dtype=float)
 
-    def offset_knots(self, traj: JointTrajectory, kp: Sequence[float]) -> np.ndarray:
-        """Commanded knot positions ``q + G(q)/kp`` for a PD servo with gains ``kp``."""
-        kp_a = np.asarray(kp, dtype=float)
-        out = traj.q.copy()
-        for i, q in enumerate(traj.q):
-            out[i] = q + self.torque(q) / np.maximum(kp_a, 1e-6)
-        return out
+    def feed_forward(self, q_knots: np.ndarray) -> np.ndarray:
+        """Feed-forward torques ``G(q)`` for every knot of ``q_knots`` (N, 4) -> (N, 4)."""
+        q = np.asarray(q_knots, dtype=float).reshape(-1, len(self._iq))
+        return np.array([self.torque(row) for row in q]).reshape(q.shape)

@@ -112,19 +112,6 @@ class JointTrajectory:
             dq=np.vstack([self.dq, other.dq[skip:]]),
         )
 
-    def to_message(self, kp: Sequence[float], kd: Sequence[float], stamp: float | None = None):  # noqa: ANN201
-        """The wire message (``quadmanip.common.messages.ArmTrajectory``)."""
-        from quadmanip.common.messages import ArmTrajectory
-
-        return ArmTrajectory(
-            stamp=float(self.t[0] if stamp is None else stamp),
-            t=self.t.astype(float),
-            q=self.q.astype(float),
-            dq=self.dq.astype(float),
-            kp=np.asarray(kp, dtype=float),
-            kd=np.asarray(kd, dtype=float),
-        )
-
 
 def hold(q: Sequence[float], t0: float) -> JointTrajectory:
     """A single-knot trajectory: hold ``q`` from ``t0`` on (used to stop the arm)."""

@@ -75,21 +75,21 @@ class VizNode(Service):
     config_type = VizConfig
     config_name = "viz"
     inputs = (
-        Input("sim/lowstate", m.LowState, latest_only=True, doc="joints/IMU plots (decimated)"),
-        Input("sim/camera/front", m.RgbdImage, latest_only=True, doc="front RGB-D"),
-        Input("sim/camera/gripper", m.RgbdImage, latest_only=True, doc="gripper RGB-D"),
-        Input("sim/scan", m.LaserScan, latest_only=True, doc="2D LiDAR points"),
-        Input("locomotion/odometry", m.Odometry, latest_only=True, doc="base pose, trail"),
-        Input("locomotion/debug", m.LocomotionDebug, latest_only=True, doc="MPC, gait, forces"),
-        Input("locomotion/cmd_vel", m.BodyVelocityCommand, latest_only=True, doc="cmd velocity"),
-        Input("sim/arm_trajectory", m.ArmTrajectory, doc="commanded arm trajectory (plots)"),
-        Input("sim/gripper_command", m.GripperCommand, doc="commanded finger gap (plots)"),
-        Input("sim/gt/base", m.GroundTruthPoses, latest_only=True, doc="GROUND TRUTH base"),
-        Input("sim/gt/objects", m.GroundTruthPoses, latest_only=True, doc="GROUND TRUTH objects"),
-        Input("sim/gt/contacts", m.GroundTruthContacts, latest_only=True, doc="GT contacts"),
-        Input("sim/gt/judge", m.JudgeReport, doc="judge verdicts (text log)"),
+        Input("sim/lowstate", latest_only=True, doc="joints/IMU plots (decimated)"),
+        Input("sim/camera/front", latest_only=True, doc="front RGB-D"),
+        Input("sim/camera/gripper", latest_only=True, doc="gripper RGB-D"),
+        Input("sim/scan", latest_only=True, doc="2D LiDAR points"),
+        Input("locomotion/odometry", latest_only=True, doc="base pose, trail"),
+        Input("locomotion/debug", latest_only=True, doc="MPC, gait, forces"),
+        Input("locomotion/cmd_vel", latest_only=True, doc="cmd velocity"),
+        Input("sim/arm_trajectory", doc="commanded arm trajectory (plots)"),
+        Input("sim/gripper_command", doc="commanded finger gap (plots)"),
+        Input("sim/gt/base", latest_only=True, doc="GROUND TRUTH base"),
+        Input("sim/gt/objects", latest_only=True, doc="GROUND TRUTH objects"),
+        Input("sim/gt/contacts", latest_only=True, doc="GT contacts"),
+        Input("sim/gt/judge", doc="judge verdicts (text log)"),
     ) + tuple(
-        Input(f"{s}/heartbeat", m.Heartbeat, doc="state changes (text log)") for s in keys.SERVICES
+        Input(f"{s}/heartbeat", doc="state changes (text log)") for s in keys.SERVICES
     )
     outputs = ()
     loop_period = 0.25  # step(): periodic counter report

@@ -63,10 +63,6 @@ class World:
         """The table tops objects may lie on (the deposit table is not one)."""
         return tuple(s for s in self.surfaces if s.kind == "table")
 
-    def object_body(self, name: str) -> str:
-        """MuJoCo body name of a catalogue object (``obj/<name>``)."""
-        return f"obj/{name}"
-
     def place_of(self, name: str) -> str:
         """The deposit place an object belongs in."""
         return self.catalogue.place_of(name)

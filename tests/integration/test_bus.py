@@ -16,6 +16,7 @@ import time
 
 import pytest
 import qm_examples
+import qm_keys
 import zenoh
 from quadmanip.common.messages import Clock, Heartbeat
 from quadmanip.common.schema import message_types
@@ -30,7 +31,7 @@ def relay(zenoh_router, spawn, bus_factory):
     """(router endpoint, relay child, test-process bus) with the relay up and wired."""
     child = spawn(RELAY, endpoint=zenoh_router)
     assert child.wait_for(r'"ready": true', 30), child.output()
-    bus = bus_factory(zenoh_router)
+    bus = bus_factory(zenoh_router, table=qm_keys.TABLE)
     return zenoh_router, child, bus
 
 
@@ -41,8 +42,8 @@ def _roundtrip_all(bus, timeout: float) -> dict[str, object]:
     pubs = {}
     for t in examples:
         s = qm_examples.slug(t)
-        bus.subscribe(f"test/out/{s}", t, received[t.SCHEMA].put)
-        pubs[t] = bus.publisher(f"test/in/{s}", t, kind="event")
+        bus.subscribe(f"test/out/{s}", received[t.SCHEMA].put)
+        pubs[t] = bus.publisher(f"test/in/{s}")
     got: dict[str, object] = {}
     deadline = time.monotonic() + timeout
     while len(got) < len(examples) and time.monotonic() < deadline:
@@ -74,8 +75,8 @@ def test_every_message_type_is_delivered_unchanged_across_processes(relay):
 def test_malformed_bytes_are_counted_and_the_subscriber_keeps_working(relay):
     _, child, bus = relay
     back: queue.Queue = queue.Queue()
-    bus.subscribe("test/out/clock", Clock, back.put)
-    pub = bus.publisher("test/in/clock", Clock, kind="event")
+    bus.subscribe("test/out/clock", back.put)
+    pub = bus.publisher("test/in/clock")
     # The relay's subscriber must be reachable before we start counting.
     deadline = time.monotonic() + 10
     while back.empty() and time.monotonic() < deadline:
@@ -150,9 +151,9 @@ def test_action_goal_feedback_result_reject_and_cancel_across_processes(relay):
 def test_service_runtime_heartbeat_and_clean_sigterm_stop(relay):
     _, child, bus = relay
     beats: queue.Queue = queue.Queue()
-    bus.subscribe("relay/heartbeat", Heartbeat, lambda m: beats.put((time.monotonic(), m)))
+    bus.subscribe("relay/heartbeat", lambda m: beats.put((time.monotonic(), m)))
     # Robot time comes from sim/clock (configs/bus.toml robot_clock): heartbeats carry it.
-    clock = bus.publisher("sim/clock", Clock, kind="sensor")
+    clock = bus.publisher("sim/clock")
     deadline = time.monotonic() + 5
     while time.monotonic() < deadline:
         clock.publish(Clock(stamp=42.5))
@@ -179,7 +180,7 @@ def test_raw_zenoh_put_without_session_reaches_nothing_typed(relay):
     not see this router's traffic (multicast scouting is off)."""
     endpoint, _, bus = relay
     got: queue.Queue = queue.Queue()
-    bus.subscribe("test/isolation", Clock, got.put)
+    bus.subscribe("test/isolation", got.put)
     cfg = zenoh.Config()
     cfg.insert_json5("mode", '"peer"')
     cfg.insert_json5("scouting/multicast/enabled", "false")
@@ -200,10 +201,12 @@ def test_raw_zenoh_put_without_session_reaches_nothing_typed(relay):
 
 FORGETFUL = """
 import time
+from quadmanip.common import keys
 from quadmanip.common.bus import Bus, BusConfig
 from quadmanip.common.messages import Clock
-bus = Bus(BusConfig(connect=({ep!r},), listen=("tcp/127.0.0.1:0",)))
-bus.subscribe("test/forget", Clock, print)
+table = keys.TABLE.extended((keys.row("test", "forget", Clock, "event", "out", "check"),))
+bus = Bus(BusConfig(connect=({ep!r},), listen=("tcp/127.0.0.1:0",)), table=table)
+bus.subscribe("test/forget", print)
 bus.watch_liveliness(print)
 bus.declare_alive("forgetful")
 time.sleep(0.3)

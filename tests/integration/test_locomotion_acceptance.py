@@ -52,13 +52,13 @@ class Stack:
         self.bus = bus_factory(endpoint)
         self.lock = threading.Lock()
         self.gt: list[tuple[float, np.ndarray, float]] = []  # (stamp, position, yaw)
-        self.bus.subscribe("sim/gt/base", m.GroundTruthPoses, self._on_gt)
-        self.odom = self.bus.latest("locomotion/odometry", m.Odometry)
-        self.clock = self.bus.latest("sim/clock", m.Clock)
-        self.pub_mode = self.bus.publisher("locomotion/mode", m.LocomotionMode)
-        self.pub_vel = self.bus.publisher("locomotion/cmd_vel", m.BodyVelocityCommand)
-        self.pub_pose = self.bus.publisher("locomotion/body_pose", m.BodyPoseCommand)
-        self.pub_push = self.bus.publisher("sim/test/disturbance", m.Disturbance)
+        self.bus.subscribe("sim/gt/base", self._on_gt)
+        self.odom = self.bus.latest("locomotion/odometry")
+        self.clock = self.bus.latest("sim/clock")
+        self.pub_mode = self.bus.publisher("locomotion/mode")
+        self.pub_vel = self.bus.publisher("locomotion/cmd_vel")
+        self.pub_pose = self.bus.publisher("locomotion/body_pose")
+        self.pub_push = self.bus.publisher("sim/test/disturbance")
 
     def _on_gt(self, msg: m.GroundTruthPoses) -> None:
         with self.lock:

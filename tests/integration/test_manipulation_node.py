@@ -42,7 +42,7 @@ def test_actions_reject_run_and_cancel(zenoh_router, spawn, bus_factory):
     manip = spawn(*MANIP_ARGS, endpoint=ep)
     procs = (sim, loco, manip)
     bus = bus_factory(ep)
-    state = bus.latest("sim/lowstate", m.LowState)
+    state = bus.latest("sim/lowstate")
     posture = bus.action_client("manipulation", "move_to_posture")
     grasp = bus.action_client("manipulation", "grasp")
     place = bus.action_client("manipulation", "place")

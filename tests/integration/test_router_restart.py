@@ -16,6 +16,7 @@ import re
 import time
 
 import pytest
+import qm_keys
 import qm_examples
 from quadmanip.common.messages import Clock
 
@@ -70,8 +71,8 @@ def test_peer_mode_flow_survives_and_peers_rejoin_a_restarted_router(
     assert sub.wait_for(r"^got \d+", 2.0, start=n_lines), "peer link died with the router"
 
     router_factory(router.port)
-    late = bus_factory(router.endpoint, mode="client")
+    late = bus_factory(router.endpoint, mode="client", table=qm_keys.TABLE)
     got: queue.Queue = queue.Queue()
-    late.subscribe("test/counter", Clock, got.put)
+    late.subscribe("test/counter", got.put)
     msg = got.get(timeout=RESUME_LIMIT_S)
     assert msg.stamp > 0

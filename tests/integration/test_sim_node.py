@@ -37,7 +37,7 @@ class Collector:
         }
         for topic, t in topics.items():
             self.stamps[topic] = []
-            bus.subscribe(topic, t, self._cb(topic))
+            bus.subscribe(topic, self._cb(topic))
 
     def _cb(self, topic):
         def cb(m) -> None:
@@ -116,7 +116,7 @@ def test_realtime_rates_and_disturbance_refused(zenoh_router, spawn, bus_factory
     w0, t0 = time.monotonic(), col.sim_time()
     # Test-only push: 400 N up on the base for 0.5 s would throw the 16 kg robot up; the
     # node refuses it because allow_test_disturbance is false.
-    pub = bus.publisher("sim/test/disturbance", msg.Disturbance, kind="control")
+    pub = bus.publisher("sim/test/disturbance")
     push = msg.Disturbance(stamp=t0, force=[0, 0, 400.0], torque=[0, 0, 0], duration=0.5)
     for _ in range(5):
         pub.publish(push)

@@ -152,7 +152,7 @@ def test_viz_records_every_stream(zenoh_router, spawn, bus_factory, tmp_path: Pa
     bus = bus_factory(zenoh_router)
     first = _messages(0.0)
     pubs = {
-        topic: bus.publisher(topic, type(msg), kind=KINDS.get(topic, "sensor"))
+        topic: bus.publisher(topic)
         for topic, msg in first.items()
     }
     deadline = time.monotonic() + 20.0

@@ -14,6 +14,7 @@ import threading
 import time
 
 import pytest
+from quadmanip.common import keys
 from quadmanip.common.bus import (
     ActionCanceled,
     Bus,
@@ -30,11 +31,24 @@ from quadmanip.common.service import Input, Output, Service, _parse_set, run_ser
 pytestmark = [pytest.mark.unit, pytest.mark.timeout(60)]
 
 LOCAL = BusConfig(mode="peer", connect=(), listen=("tcp/127.0.0.1:0",), env_override=False)
+UNIT = keys.TABLE.extended(
+    (
+        keys.row("x", "clock", Clock, "control", "out", "unit"),
+        keys.row("x", "c", Clock, "control", "out", "unit"),
+        keys.row("x", "a", Clock, "control", "out", "unit"),
+        keys.row("x", "sensor", Clock, "sensor", "out", "unit"),
+        keys.row("x", "state", LegCommand, "sensor", "out", "unit"),
+        keys.row("probe", "in", Clock, "control", "in", "unit"),
+        keys.row("probe", "out", Clock, "event", "out", "unit"),
+    ),
+    tuple(keys.action_row("arm", a, Clock, "unit") for a in ("count", "once", "late", "nobody")),
+)
+"""The product's key table plus this file's own keys."""
 
 
 @pytest.fixture
 def bus():
-    b = Bus(LOCAL, robot="unit")
+    b = Bus(LOCAL, robot="unit", table=UNIT)
     yield b
     b.close()
 
@@ -69,22 +83,41 @@ def test_keys_and_zenoh_config_translation():
 
 
 def test_publisher_refuses_other_types(bus):
-    pub = bus.publisher("x/clock", Clock)
+    pub = bus.publisher("x/clock")
+    assert (pub.msg_type, pub.kind) == (Clock, "control")  # from the table's row
+    assert bus.publisher("x/state").kind == "sensor"
     with pytest.raises(TypeError, match="sends Clock"):
         pub.publish(Heartbeat(stamp=0.0, service="s", seq=0, state=""))
-    with pytest.raises(ValueError, match="kind"):
-        bus.publisher("x/y", Clock, kind="bulk")  # type: ignore[arg-type]
+
+
+def test_the_bus_refuses_what_the_key_table_lacks(bus):
+    for refused in (
+        lambda: bus.publisher("x/y"),
+        lambda: bus.subscribe("x/y", print),
+        lambda: bus.latest("qm/unit/x/y"),
+        lambda: bus.action_server("arm", "jump", lambda h: None),
+        lambda: bus.action_client("arm", "jump"),
+    ):
+        with pytest.raises(keys.UnknownKey, match="not in the key table"):
+            refused()
+    with pytest.raises(keys.UnknownKey, match="several message types"):
+        bus.subscribe("x/*", print)  # Clock and LegCommand rows
+    assert bus.subscribe("*/heartbeat", print).msg_type is Heartbeat
+    with pytest.raises(TypeError, match="takes Clock"):
+        bus.action_client("arm", "count").send_goal(Heartbeat(stamp=0, service="", seq=0, state=""))
+    with pytest.raises(keys.UnknownKey):
+        Bus(LOCAL).publisher("x/clock")  # the product table has no test keys
 
 
 def test_malformed_payloads_are_counted_logged_throttled_and_stream_continues(bus, caplog):
     got: queue.Queue = queue.Queue()
-    sub = bus.subscribe("x/clock", Clock, got.put)
+    sub = bus.subscribe("x/clock", got.put)
     key = bus.key("x/clock")
     bad = [b"", b"\xc1", b"\x94", encode(Heartbeat(stamp=0.0, service="s", seq=1, state=""))]
     with caplog.at_level(logging.WARNING, logger="quadmanip.bus"):
         for data in bad * 5:
             bus.session.put(key, data)
-        bus.publisher("x/clock", Clock).publish(Clock(stamp=3.0))
+        bus.publisher("x/clock").publish(Clock(stamp=3.0))
         msgs = _drain(got, 1.0)
     assert [m.stamp for m in msgs] == [3.0]
     assert sub.error_count == 20 and sub.received_count == 21
@@ -102,8 +135,8 @@ def test_callback_exceptions_are_counted_and_do_not_stop_the_subscriber(bus):
         if m.stamp < 2:
             raise RuntimeError("boom")
 
-    sub = bus.subscribe("x/c", Clock, cb)
-    pub = bus.publisher("x/c", Clock)
+    sub = bus.subscribe("x/c", cb)
+    pub = bus.publisher("x/c")
     for s in (0.0, 1.0, 2.0):
         pub.publish(Clock(stamp=s))
     deadline = time.monotonic() + 2
@@ -120,8 +153,8 @@ def test_latest_only_subscriber_never_queues_behind_a_slow_consumer(bus):
         calls.append((time.monotonic(), m.stamp))
         time.sleep(0.1)
 
-    sub = bus.subscribe("x/sensor", Clock, slow, latest_only=True)
-    pub = bus.publisher("x/sensor", Clock, kind="sensor")
+    sub = bus.subscribe("x/sensor", slow, latest_only=True)
+    pub = bus.publisher("x/sensor")
     for i in range(100):
         pub.publish(Clock(stamp=float(i)))
         time.sleep(0.003)
@@ -135,9 +168,9 @@ def test_latest_only_subscriber_never_queues_behind_a_slow_consumer(bus):
 
 
 def test_latest_cache_returns_newest_valid_message(bus):
-    cache = bus.latest("x/state", LegCommand)
+    cache = bus.latest("x/state")
     assert cache.get() is None and cache.age is None
-    pub = bus.publisher("x/state", LegCommand, kind="sensor")
+    pub = bus.publisher("x/state")
     import numpy as np
 
     z = np.zeros(12)
@@ -174,7 +207,7 @@ def test_action_roundtrip_reject_preempt_and_lost_result_recovery(bus):
             time.sleep(0.02)
         return Clock(stamp=float(n))
 
-    bus.action_server("arm", "count", Clock, execute, policy="preempt")
+    bus.action_server("arm", "count", execute, policy="preempt")
     client = bus.action_client("arm", "count")
     h = client.send_goal(Clock(stamp=3.0))
     assert h.accepted
@@ -207,7 +240,7 @@ def test_a_resent_goal_is_accepted_again_and_runs_once(bus):
         time.sleep(0.2)
         return h.goal
 
-    bus.action_server("arm", "once", Clock, execute)  # policy "reject": busy otherwise
+    bus.action_server("arm", "once", execute)  # policy "reject": busy otherwise
     client = bus.action_client("arm", "once")
     first = client.send_goal(Clock(stamp=2.0), goal_id="g-1")
     again = client.send_goal(Clock(stamp=2.0), goal_id="g-1")  # a retry after a lost reply
@@ -224,7 +257,7 @@ def test_a_resent_goal_is_accepted_again_and_runs_once(bus):
 
 def test_a_goal_waits_its_timeout_for_a_server_that_appears_late(bus):
     client = bus.action_client("arm", "late")
-    threading.Timer(0.4, lambda: bus.action_server("arm", "late", Clock, lambda h: h.goal)).start()
+    threading.Timer(0.4, lambda: bus.action_server("arm", "late", lambda h: h.goal)).start()
     t0 = time.monotonic()
     h = client.send_goal(Clock(stamp=1.0), timeout=5.0)
     assert h.accepted, h.reason
@@ -251,9 +284,9 @@ def test_safe_close_abandons_a_hanging_close_within_its_budget():
     t0 = time.monotonic()
     assert safe_close(Hanging(), timeout_s=0.3) is False  # type: ignore[arg-type]
     assert time.monotonic() - t0 < 0.5
-    b = Bus(LOCAL)
-    b.subscribe("x/a", Clock, lambda m: time.sleep(1))
-    b.publisher("x/a", Clock).publish(Clock(stamp=0.0))
+    b = Bus(LOCAL, table=UNIT)
+    b.subscribe("x/a", lambda m: time.sleep(1))
+    b.publisher("x/a").publish(Clock(stamp=0.0))
     t0 = time.monotonic()
     b.close()
     assert time.monotonic() - t0 < 2.0
@@ -278,8 +311,9 @@ class Probe(Service):
     """A service for runtime tests."""
 
     name = "probe"
-    inputs = (Input("probe/in", Clock),)
-    outputs = (Output("probe/out", Clock, kind="event"),)
+    key_table = UNIT
+    inputs = (Input("probe/in"),)
+    outputs = (Output("probe/out"),)
     loop_period = 0.01
 
     def setup(self) -> None:
@@ -306,11 +340,19 @@ def test_run_service_lifecycle_declared_io_and_step_errors(capsys):
         "latest_only": False,
         "doc": "",
     }
+    assert desc["outputs"][0]["kind"] == "event"
     assert desc["heartbeat"] == "probe/heartbeat" and desc["liveliness"] == "probe/alive"
     t0 = time.monotonic()
     assert run_service(Probe, [], bus_config=LOCAL, install_signals=False) == 0
     assert time.monotonic() - t0 < 3.0
     assert run_service(Probe, ["--set", "nope=1"], bus_config=LOCAL, install_signals=False) == 2
+
+    class Stray(Probe):
+        outputs = (Output("probe/elsewhere"),)
+
+    with pytest.raises(ValueError, match="probe/elsewhere"):
+        Stray.check_declarations()
+    assert run_service(Stray, ["--describe"]) == 2
 
 
 def test_set_values_parse_as_toml():
@@ -328,7 +370,7 @@ def test_follow_clock_stamps_with_robot_time(bus):
     assert bus.clock() > 1e9  # wall time until told otherwise
     cache = bus.follow_clock("x/clock")
     assert bus.clock() == 0.0
-    pub = bus.publisher("x/clock", Clock, kind="sensor")
+    pub = bus.publisher("x/clock")
     pub.publish(Clock(stamp=12.25))
     deadline = time.monotonic() + 1.0
     while cache.get() is None and time.monotonic() < deadline:

@@ -197,7 +197,7 @@ def test_keys_command_prints_every_topic(capsys):
 
 
 def test_keys_markdown_is_the_generated_table(capsys):
-    code, out = run_cli(["keys", "--markdown", "--robot", "dog7"], capsys)
+    code, out = run_cli(["keys", "--robot", "dog7"], capsys)
     assert code == 0 and out == keys.render_key_table_markdown("dog7")
 
 

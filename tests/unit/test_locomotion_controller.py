@@ -247,8 +247,8 @@ def test_sit_down_and_damp():
 def test_node_helpers_held_mass_and_quaternion():
     from quadmanip.common import messages as m
     from quadmanip.services.locomotion.controller import NodeOptions
-    from quadmanip.services.locomotion.node import held_mass, rot_to_quat
-    from quadmanip.services.locomotion.state_estimator import quat_to_rot
+    from quadmanip.common.rotations import mat_to_quat, quat_to_mat
+    from quadmanip.services.locomotion.node import held_mass
 
     opt = NodeOptions(held_object_mass=0.5, grip_effort_threshold=2.0, grip_min_gap=0.005)
     z = np.zeros(16)
@@ -269,4 +269,4 @@ def test_node_helpers_held_mass_and_quaternion():
         q = rng.normal(size=4)
         q /= np.linalg.norm(q)
         q = q if q[0] >= 0 else -q
-        assert rot_to_quat(quat_to_rot(q)) == pytest.approx(q, abs=1e-9)
+        assert mat_to_quat(quat_to_mat(q)) == pytest.approx(q, abs=1e-9)

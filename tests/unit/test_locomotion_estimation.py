@@ -7,12 +7,8 @@ import numpy as np
 import pytest
 from quadmanip.common import robot_description as rd
 from quadmanip.services.locomotion.leg_kinematics import FOOT_SITES, LegKinematics
-from quadmanip.services.locomotion.state_estimator import (
-    EstimatorParams,
-    StateEstimator,
-    quat_to_rot,
-    rot_to_rpy,
-)
+from quadmanip.common.rotations import quat_to_mat, rpy_from_mat
+from quadmanip.services.locomotion.state_estimator import EstimatorParams, StateEstimator
 
 pytestmark = pytest.mark.unit
 
@@ -158,7 +154,7 @@ def test_rotation_helpers_roundtrip():
             @ np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
             @ np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
         )
-        assert rot_to_rpy(r) == pytest.approx(rpy)
+        assert rpy_from_mat(r) == pytest.approx(rpy)
         q = np.zeros(4)
         mujoco.mju_mat2Quat(q, r.reshape(9))
-        assert quat_to_rot(q) == pytest.approx(r)
+        assert quat_to_mat(q) == pytest.approx(r)

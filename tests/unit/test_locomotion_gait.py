@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from quadmanip.common.rotations import quat_mul, yaw_from_quat
 from quadmanip.services.locomotion.com_reference import (
     ComReference,
     FsmParams,
     fsm_plan,
     integrate_quat,
     omega_matrix,
-    quat_to_yaw,
 )
 from quadmanip.services.locomotion.gait import GaitParams, TrotGait
 from quadmanip.services.locomotion.swing_leg import SwingParams, swing_profile, touchdown_target
@@ -48,19 +48,6 @@ def test_schedule_and_swing_progress():
 
 
 # ------------------------------------------------------------------ eqs. 10-12
-def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    w1, x1, y1, z1 = a
-    w2, x2, y2, z2 = b
-    return np.array(
-        [
-            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-        ]
-    )
-
-
 def test_corrected_omega_is_the_quaternion_derivative():
     rng = np.random.default_rng(0)
     for _ in range(5):
@@ -75,7 +62,7 @@ def test_yaw_integration_eq_12():
     q = np.array([1.0, 0.0, 0.0, 0.0])
     for _ in range(500):
         q = integrate_quat(q, np.array([0.0, 0.0, 1.0]), 0.002)
-    assert quat_to_yaw(q) == pytest.approx(1.0, abs=1e-3)
+    assert yaw_from_quat(q) == pytest.approx(1.0, abs=1e-3)
     assert np.linalg.norm(q) == pytest.approx(1.0)
 
 

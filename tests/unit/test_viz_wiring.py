@@ -51,7 +51,7 @@ class FakeBus:
         self.latest_only: dict[str, bool] = {}
         self.stats = _Stats()
 
-    def subscribe(self, topic: str, msg_type: type, callback: Any, latest_only: bool) -> _Sub:
+    def subscribe(self, topic: str, callback: Any, latest_only: bool) -> _Sub:
         self.callbacks.setdefault(topic, []).append(callback)
         self.latest_only[topic] = latest_only
         return _Sub(topic)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import sys
 
+import qm_keys
 from quadmanip.common.messages import Clock
 from quadmanip.common.service import Input, Output, Service, run_service
 
@@ -18,7 +19,8 @@ class CounterPub(Service):
     """Publish an increasing counter."""
 
     name = "counterpub"
-    outputs = (Output("test/counter", Clock, kind="control"),)
+    key_table = qm_keys.TABLE
+    outputs = (Output("test/counter"),)
     loop_period = 0.02
 
     def setup(self) -> None:
@@ -34,7 +36,8 @@ class CounterSub(Service):
     """Print every counter value received."""
 
     name = "countersub"
-    inputs = (Input("test/counter", Clock),)
+    key_table = qm_keys.TABLE
+    inputs = (Input("test/counter"),)
 
     def setup(self) -> None:
         self.subscribe("test/counter", lambda m: print(f"got {int(m.stamp)}", flush=True))

@@ -18,6 +18,7 @@ import sys
 import time
 
 import qm_examples
+import qm_keys
 from quadmanip.common.bus import ActionFailed, GoalHandle
 from quadmanip.common.messages import Clock
 from quadmanip.common.schema import message_types
@@ -28,10 +29,9 @@ class Relay(Service):
     """Echo every message type (test helper)."""
 
     name = "relay"
-    inputs = tuple(Input(f"test/in/{qm_examples.slug(t)}", t) for t in message_types())
-    outputs = tuple(
-        Output(f"test/out/{qm_examples.slug(t)}", t, kind="event") for t in message_types()
-    )
+    key_table = qm_keys.TABLE
+    inputs = tuple(Input(f"test/in/{qm_examples.slug(t)}") for t in message_types())
+    outputs = tuple(Output(f"test/out/{qm_examples.slug(t)}") for t in message_types())
     actions = ("count",)
     loop_period = 0.05
 
@@ -39,7 +39,7 @@ class Relay(Service):
         for inp, out in zip(self.inputs, self.outputs, strict=True):
             pub = self.publisher(out.topic)
             self.subscribe(inp.topic, pub.publish)
-        self.bus.action_server("relay", "count", Clock, self._count, accept=self._accept)
+        self.action_server("count", self._count, accept=self._accept)
         self._reported: dict[str, int] = {}
         print(json.dumps({"ready": True}), flush=True)
 
