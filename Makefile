@@ -27,6 +27,7 @@ test-all: $(STAMP)
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
+	$(PY) -m pytest -q tests/unit/test_layers.py  # import-linter's layer contracts
 
 format: $(STAMP)
 	$(VENV)/bin/ruff format .

@@ -2,7 +2,8 @@
 
 Conventions (docs/conventions.md): SI units; x forward, y left, z up; quaternions
 [w, x, y, z]; ``stamp`` is robot time in seconds (sim time in simulation). Joint arrays of
-16 are legs FL(abad, hip, knee), FR, RL, RR then arm j1..j4; leg arrays have 12.
+16 are legs FL(abad, hip, knee), FR, RL, RR then arm j1..j4; leg arrays have 12
+(the layout: :mod:`quadmanip.common.joint_layout`).
 
 Arrays accept lists/tuples on construction (``LegCommand(stamp=0.0, tick=1, q_des=[0]*12,
 ...)``); they are converted to the declared dtype, validated (shape, finiteness) and made
@@ -18,6 +19,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from quadmanip.common.joint_layout import N_ARM_JOINTS, N_JOINTS, N_LEG_JOINTS
 from quadmanip.common.schema import (
     Message,
     MessageError,
@@ -71,9 +73,7 @@ __all__ = [
     "registry",
 ]
 
-N_JOINTS = 16
-N_LEG_JOINTS = 12
-N_ARM_JOINTS = 4
+# Array sizes of the joint layout (legs + arm in wire order): common/joint_layout.py.
 
 _MAX_TEXT = 4096  # free-text reasons / feedback
 

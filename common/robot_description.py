@@ -20,12 +20,13 @@ from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
-from quadmanip.common.joint_layout import (
+from quadmanip.common.joint_layout import (  # noqa: F401 - re-exported
     ACTUATORS,
     ARM_JOINTS,
     ARM_SLICE,
     GRIPPER_ACTUATOR,
     JOINTS,
+    JOINTS_PER_LEG,
     LEG_JOINT_KINDS,
     LEG_JOINTS,
     LEG_NAMES,
@@ -33,6 +34,8 @@ from quadmanip.common.joint_layout import (
     N_ARM_JOINTS,
     N_JOINTS,
     N_LEG_JOINTS,
+    N_LEGS,
+    leg_slice,
 )
 from quadmanip.common.rotations import quat_to_mat
 from quadmanip.paths import CONFIG_DIR
@@ -47,21 +50,7 @@ BASE_BODY = "base"
 FREE_JOINT = "base_free"
 TRUNK_GEOM = "trunk"
 # The joint layout (LEG_NAMES, LEG_JOINTS, ARM_JOINTS, JOINTS, ACTUATORS, the counts and
-# slices) comes from quadmanip.common.joint_layout, imported above.
-__layout__ = (
-    ACTUATORS,
-    ARM_JOINTS,
-    ARM_SLICE,
-    GRIPPER_ACTUATOR,
-    JOINTS,
-    LEG_JOINT_KINDS,
-    LEG_JOINTS,
-    LEG_NAMES,
-    LEG_SLICE,
-    N_ARM_JOINTS,
-    N_JOINTS,
-    N_LEG_JOINTS,
-)
+# slices) is imported from quadmanip.common.joint_layout above and re-exported.
 GRIPPER_JOINTS: tuple[str, ...] = ("gripper_left", "gripper_right")
 GRIPPER_TENDON = "gripper_gap"
 

@@ -90,7 +90,9 @@ def quat_from_euler_xyz(angles: Sequence[float], degrees: bool = False) -> np.nd
     This is the order of MJCF's default ``euler`` attribute (``eulerseq="xyz"``).
     """
     q = np.array([1.0, 0.0, 0.0, 0.0])
-    for axis, angle in zip(((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)), angles, strict=True):
+    for axis, angle in zip(
+        ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)), angles, strict=True
+    ):
         if angle:
             a = math.radians(angle) if degrees else float(angle)
             q = quat_mul(q, quat_from_axis_angle(axis, a))

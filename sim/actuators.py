@@ -35,12 +35,12 @@ from enum import StrEnum
 
 import mujoco
 import numpy as np
+from quadmanip.common.joint_layout import GRIPPER_ACTUATOR
+from quadmanip.common.joint_layout import N_ARM_JOINTS as N_ARM
+from quadmanip.common.joint_layout import N_LEG_JOINTS as N_LEG
 from quadmanip.common.log import get_logger
 
 log = get_logger("sim.actuators")
-
-N_LEG = 12
-N_ARM = 4
 
 
 @dataclass(frozen=True)
@@ -282,10 +282,10 @@ class ActuatorLayer:
         leg_joints: tuple[str, ...] | list[str],
         arm_joints: tuple[str, ...] | list[str],
         gripper_joints: tuple[str, ...] | list[str],
-        gripper_actuator: str = "gripper",
+        gripper_actuator: str = GRIPPER_ACTUATOR,
     ) -> None:
         if len(leg_joints) != N_LEG or len(arm_joints) != N_ARM:
-            raise ValueError("expected 12 leg joints and 4 arm joints")
+            raise ValueError(f"expected {N_LEG} leg joints and {N_ARM} arm joints")
         self.model = model
         self.config = config
         self.legs = JointMap.build(model, leg_joints, config.leg_max_speed)
@@ -351,7 +351,7 @@ class ActuatorLayer:
         arrays = [q_des, dq_des, kp, kd, tau_ff]
         for i, a in enumerate(arrays):
             if np.shape(a) != (N_LEG,):
-                return self._reject("leg", f"{names[i]} shape {np.shape(a)} != (12,)")
+                return self._reject("leg", f"{names[i]} shape {np.shape(a)} != ({N_LEG},)")
         try:
             cmd = np.array(arrays, dtype=float)  # (5, 12), a private copy
         except (TypeError, ValueError):

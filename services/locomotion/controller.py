@@ -19,6 +19,8 @@ import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from quadmanip.common import robot_description as rd
+from quadmanip.common.joint_layout import LEG_SLICE, N_JOINTS, N_LEG_JOINTS, N_LEGS, leg_slice
 from quadmanip.common.rotations import quat_to_mat, rpy_from_mat
 from quadmanip.services.locomotion.com_reference import ComReference, FsmParams
 from quadmanip.services.locomotion.convex_mpc import ConvexMpc, MpcParams, MpcWeights
@@ -107,7 +109,6 @@ class LocomotionConfig:
     held_mass: float = 0.0
     profile: str = "tuned"
     profiles: dict[str, Profile] = field(default_factory=default_profiles)
-    sit_pose: tuple[float, float, float] = (0.0, 1.2, -2.6)  # abad, hip, knee
     mpc: MpcParams = field(default_factory=MpcParams)
     swing: SwingParams = field(default_factory=SwingParams)
     estimator: EstimatorParams = field(default_factory=EstimatorParams)
@@ -195,7 +196,9 @@ class LocomotionController:
         self.nominal_feet = self.kin.straight_leg_feet.copy()
         self.nominal_feet[:, 2] = -config.stand_height + config.estimator.foot_radius
         self.q_stand = self._leg_ik(self.nominal_feet)
-        self.q_sit = np.tile(np.asarray(config.sit_pose, dtype=float), 4)
+        # Sit = the description's `lying` keyframe (the pose the robot rests in).
+        description = rd.load_mujoco_model(mjcf) if mjcf is not None else None
+        self.q_sit = rd.lying_joint_positions(description)[LEG_SLICE].copy()
         # Commands.
         self.cmd_vel = np.zeros(3)
         self.cmd_vel_time = -math.inf
@@ -221,18 +224,18 @@ class LocomotionController:
     # ------------------------------------------------------------------ helpers
     def _leg_ik(self, feet_body: np.ndarray, iters: int = 30) -> np.ndarray:
         """Joint angles that put the feet at feet_body (base frame), by damped Newton steps."""
-        q = np.zeros(16)
-        q[:12] = np.tile([0.0, 0.7, -1.4], 4)
+        q = np.zeros(N_JOINTS)
+        q[LEG_SLICE] = np.tile([0.0, 0.7, -1.4], N_LEGS)
         for _ in range(iters):
             self.kin.update(q)
             err = feet_body - self.kin.foot_pos
             if np.max(np.abs(err)) < 1e-6:
                 break
-            for i in range(4):
+            for i in range(N_LEGS):
                 j = self.kin.foot_jac[i]
                 step = np.linalg.solve(j.T @ j + 1e-6 * np.eye(3), j.T @ err[i])
-                q[3 * i : 3 * i + 3] += step
-        return q[:12].copy()
+                q[leg_slice(i)] += step
+        return q[LEG_SLICE].copy()
 
     # ------------------------------------------------------------------ commands
     def set_mode(self, mode: str) -> None:
@@ -354,15 +357,19 @@ class LocomotionController:
         return self._mpc_tick(q16, dq16, np.asarray(quat, float), gyro, accel)
 
     def _damp(self, q16: np.ndarray) -> LegOutput:
-        z = np.zeros(12)
+        z = np.zeros(N_LEG_JOINTS)
         return LegOutput(
-            q16[:12].copy(), z, z.copy(), np.full(12, self.cfg.gains.kd_damp), z.copy()
+            q16[LEG_SLICE].copy(),
+            z,
+            z.copy(),
+            np.full(N_LEG_JOINTS, self.cfg.gains.kd_damp),
+            z.copy(),
         )
 
     def _posture(self, q16: np.ndarray) -> LegOutput:
         """Joint-space interpolation to the stand or sit pose (smoothstep in time)."""
         if self._interp_from is None:
-            self._interp_from = q16[:12].copy()
+            self._interp_from = q16[LEG_SLICE].copy()
         dur = self.cfg.stand_up_time if self.phase == "standing_up" else self.cfg.sit_time
         goal = self.q_stand if self.phase == "standing_up" else self.q_sit
         s = float(np.clip((self._t - self._interp_t0) / dur, 0.0, 1.0))
@@ -372,7 +379,11 @@ class LocomotionController:
         dq_des = (goal - self._interp_from) * da
         g = self.cfg.gains
         return LegOutput(
-            q_des, dq_des, np.full(12, g.kp_posture), np.full(12, g.kd_posture), np.zeros(12)
+            q_des,
+            dq_des,
+            np.full(N_LEG_JOINTS, g.kp_posture),
+            np.full(N_LEG_JOINTS, g.kd_posture),
+            np.zeros(N_LEG_JOINTS),
         )
 
     def _mpc_tick(
@@ -399,11 +410,11 @@ class LocomotionController:
         if walking and self._auto_walk and np.all(np.abs(self.cmd_vel) < 1e-6):
             self._stop_requested = True
         # Estimator.
-        foot_vel = self.kin.foot_velocities(dq16[:12])
+        foot_vel = self.kin.foot_velocities(dq16[LEG_SLICE])
         # Stance feet roll: their centres move by ω_calf × r·up, which is not base motion.
         up_b = quat_to_mat(quat)[2, :]  # world z in the base frame
         roll = self.kin.rolling_velocities(
-            dq16[:12], np.asarray(gyro, float), up_b, cfg.estimator.foot_radius
+            dq16[LEG_SLICE], np.asarray(gyro, float), up_b, cfg.estimator.foot_radius
         )
         self.est.update(
             dt, quat, gyro, accel, self.kin.foot_pos, foot_vel - roll, contact.astype(float)
@@ -503,12 +514,12 @@ class LocomotionController:
         # Joint velocities that realise those foot velocities (J is 3×3 per leg).
         dq_des = np.linalg.solve(
             self.kin.foot_jac + 1e-9 * np.eye(3)[None], v_rel[:, :, None]
-        ).reshape(12)
-        q_des = q16[:12].copy()
+        ).reshape(N_LEG_JOINTS)
+        q_des = q16[LEG_SLICE].copy()
         self.debug.gait_phase = np.where(progress >= 0, progress, 0.0)
         self.debug.contact = contact.copy()
         self.debug.foot_forces = self._forces_world.copy()
-        return LegOutput(q_des, dq_des, np.zeros(12), kd, tau)
+        return LegOutput(q_des, dq_des, np.zeros(N_LEG_JOINTS), kd, tau)
 
     def _run_mpc(
         self,

@@ -15,11 +15,17 @@ from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
-
-LEGS = ("FL", "FR", "RL", "RR")
-LEG_JOINTS = tuple(f"{leg}_{j}" for leg in LEGS for j in ("abad", "hip", "knee"))
-ARM_JOINTS = ("arm_j1", "arm_j2", "arm_j3", "arm_j4")
-FOOT_SITES = tuple(f"{leg}_foot" for leg in LEGS)
+from quadmanip.common import robot_description as rd
+from quadmanip.common.robot_description import (
+    ARM_JOINTS,
+    ARM_SLICE,
+    FOOT_SITES,
+    JOINTS_PER_LEG,
+    LEG_JOINTS,
+    LEG_SLICE,
+    N_JOINTS,
+    N_LEG_JOINTS,
+)
 
 
 @dataclass
@@ -33,8 +39,6 @@ class BodyInertia:
 
 def default_mjcf() -> Path:
     """Path of the robot description MJCF."""
-    from quadmanip.common import robot_description as rd
-
     return Path(rd.ROBOT_XML)
 
 
@@ -61,20 +65,20 @@ class LegKinematics:
         self.foot_jac = np.zeros((4, 3, 3))
         self.foot_jac_ang = np.zeros((4, 3, 3))  # calf angular velocity per joint rate
         self.hip_pos = self._hip_positions()
-        self.update(np.zeros(16))
+        self.update(np.zeros(N_JOINTS))
         self.straight_leg_feet = self.foot_pos.copy()  # feet of straight legs (neutral pose)
 
     def _hip_positions(self) -> np.ndarray:
         """Abduction joint origins in the base frame (at the neutral pose)."""
         pin.forwardKinematics(self.model, self.data, pin.neutral(self.model))
-        ids = [self.model.getJointId(f"{leg}_abad") for leg in LEGS]
+        ids = [self.model.getJointId(n) for n in LEG_JOINTS[::JOINTS_PER_LEG]]  # abad joints
         return np.array([self.data.oMi[i].translation.copy() for i in ids])
 
     def update(self, q16: np.ndarray) -> None:
         """Forward kinematics and foot Jacobians for joint angles q16 (legs then arm)."""
         q16 = np.asarray(q16, dtype=float)
-        self.q[self._leg_q] = q16[:12]
-        self.q[self._arm_q] = q16[12:16]
+        self.q[self._leg_q] = q16[LEG_SLICE]
+        self.q[self._arm_q] = q16[ARM_SLICE]
         m, d = self.model, self.data
         pin.computeJointJacobians(m, d, self.q)
         pin.updateFramePlacements(m, d)
@@ -109,12 +113,12 @@ class LegKinematics:
         motors when τ = −Jᵀ f (virtual work: the ground's force maps to Jᵀ f on the joints).
         """
         f = np.asarray(forces_base, dtype=float).reshape(4, 3)
-        return -np.einsum("fji,fj->fi", self.foot_jac, f).reshape(12)
+        return -np.einsum("fji,fj->fi", self.foot_jac, f).reshape(N_LEG_JOINTS)
 
     def cartesian_torques(self, forces_on_foot: np.ndarray) -> np.ndarray:
         """τ = Jᵀ F for a force F to apply *to the foot* (swing-leg Cartesian PD)."""
         f = np.asarray(forces_on_foot, dtype=float).reshape(4, 3)
-        return np.einsum("fji,fj->fi", self.foot_jac, f).reshape(12)
+        return np.einsum("fji,fj->fi", self.foot_jac, f).reshape(N_LEG_JOINTS)
 
     def body_inertia(self, held_mass: float = 0.0) -> BodyInertia:
         """Composite inertia of the whole robot in the current pose (call update() first).

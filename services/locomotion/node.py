@@ -14,7 +14,6 @@ held 0.5 m ahead made the standing balance rock front/back and throw the trunk u
 
 from __future__ import annotations
 
-import math
 import threading
 
 import numpy as np

@@ -35,6 +35,8 @@ from dataclasses import dataclass
 from enum import StrEnum
 
 import numpy as np
+from quadmanip.common.joint_layout import ARM_JOINTS
+from quadmanip.common.rotations import mat_to_quat, quat_to_mat, rot_x, rot_y, wrap_angle
 
 __all__ = [
     "ArmGeometry",
@@ -79,14 +81,15 @@ class ArmGeometry:
     def from_description(cls, model=None) -> ArmGeometry:  # noqa: ANN001 - mujoco.MjModel
         """Reads d1..d5, joint ranges and the arm mount from the MJCF robot description.
 
-        d1..d5 come from ``quadmanip.common.robot_description.arm_dimensions()`` when that
-        module exists, else straight from the model's body/site offsets (same numbers).
+        d1..d5 come from :func:`quadmanip.common.robot_description.arm_dimensions` (the
+        only source of the arm's geometry); ``model`` defaults to the robot description.
         """
         import mujoco
+        from quadmanip.common import robot_description as rd
 
         if model is None:
-            model = _load_description_model()
-        dims = _dimensions(model)
+            model = rd.load_mujoco_model()
+        dims = rd.arm_dimensions(model)
         q_min, q_max = [], []
         for jname in ARM_JOINTS:
             jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, jname)
@@ -112,48 +115,6 @@ class ArmGeometry:
         )
 
 
-def _dimensions(model) -> dict[str, float]:  # noqa: ANN001
-    try:
-        from quadmanip.common import robot_description as rd
-
-        dims = rd.arm_dimensions()
-    except (ImportError, AttributeError):
-        dims = None
-    if dims is not None:
-        if isinstance(dims, dict):
-            return {k: float(dims[k]) for k in ("d1", "d2", "d3", "d4", "d5")}
-        return {k: float(getattr(dims, k)) for k in ("d1", "d2", "d3", "d4", "d5")}
-    import mujoco
-
-    def body_pos(name: str) -> np.ndarray:
-        bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)
-        if bid < 0:
-            raise ValueError(f"robot description lacks body {name!r}")
-        return np.asarray(model.body_pos[bid], dtype=float)
-
-    sid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "gripper_tcp")
-    if sid < 0:
-        raise ValueError("robot description lacks site 'gripper_tcp'")
-    link3 = body_pos("arm_link3")
-    return {
-        "d1": float(body_pos("arm_link1")[2]),
-        "d2": float(body_pos("arm_link2")[2]),
-        "d3": float(link3[2]),
-        "d4": float(link3[0]),
-        "d5": float(model.site_pos[sid][0] + body_pos("arm_link4")[0]),
-    }
-
-
-ARM_JOINTS: tuple[str, str, str, str] = ("arm_j1", "arm_j2", "arm_j3", "arm_j4")
-
-
-def _load_description_model():  # noqa: ANN202 - mujoco types are not exported statically
-    import mujoco
-    from quadmanip.paths import CONFIG_DIR
-
-    return mujoco.MjModel.from_xml_path(str(CONFIG_DIR / "robot" / "quadmanip_dog.xml"))
-
-
 def _arm_base_in_base(model) -> tuple[tuple[float, float, float], tuple[float, ...]]:  # noqa: ANN001
     """Pose of the arm_base body in the base body, composed along the kinematic tree."""
     import mujoco
@@ -166,14 +127,11 @@ def _arm_base_in_base(model) -> tuple[tuple[float, float, float], tuple[float, .
     rot = np.eye(3)
     b = bid
     while b != base and b > 0:
-        r_b = np.zeros(9)
-        mujoco.mju_quat2Mat(r_b, model.body_quat[b])
-        r_b = r_b.reshape(3, 3)
+        r_b = quat_to_mat(model.body_quat[b])
         pos = model.body_pos[b] + r_b @ pos
         rot = r_b @ rot
         b = model.body_parentid[b]
-    quat = np.zeros(4)
-    mujoco.mju_mat2Quat(quat, rot.reshape(9))
+    quat = mat_to_quat(rot)
     return (float(pos[0]), float(pos[1]), float(pos[2])), tuple(float(v) for v in quat)
 
 
@@ -229,16 +187,6 @@ def _fail(reason: IkFailure, detail: str, lateral: float = 0.0) -> IkSolution:
     return IkSolution(ok=False, reason=reason, detail=detail, lateral_shift=lateral)
 
 
-def _rot_y(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def _rot_x(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
 def _hom(rot: np.ndarray | None = None, pos: tuple[float, float, float] | None = None):  # noqa: ANN202
     t = np.eye(4)
     if rot is not None:
@@ -254,12 +202,12 @@ def fk(geom: ArmGeometry, q: np.ndarray | tuple[float, ...]) -> np.ndarray:
     g = geom
     return (
         _hom(pos=(0.0, 0.0, g.d1))
-        @ _hom(_rot_y(q1))
+        @ _hom(rot_y(q1))
         @ _hom(pos=(0.0, 0.0, g.d2))
-        @ _hom(_rot_y(q2))
+        @ _hom(rot_y(q2))
         @ _hom(pos=(g.d4, 0.0, g.d3))
-        @ _hom(_rot_y(q3))
-        @ _hom(_rot_x(q4))
+        @ _hom(rot_y(q3))
+        @ _hom(rot_x(q4))
         @ _hom(pos=(g.d5, 0.0, 0.0))
     )
 
@@ -399,7 +347,7 @@ def solve_ik_pose(
         return _fail(IkFailure.OUT_OF_PLANE, "tool approach axis has a lateral (yaw) component")
     pitch = math.atan2(-r[2, 0], r[0, 0])
     # R = Ry(pitch) Rx(roll) -> Ry(-pitch) R = Rx(roll)
-    rx = _rot_y(-pitch) @ r
+    rx = rot_y(-pitch) @ r
     roll = math.atan2(rx[2, 1], rx[1, 1])
     return solve_ik(geom, ArmTarget(float(pose[0, 3]), float(pose[2, 3]), pitch, roll), q_ref)
 
@@ -417,20 +365,9 @@ def target_from_base_pose(
     w, qx, qy, qz = geom.arm_base_quat
     if abs(qx) > 1e-9 or abs(qz) > 1e-9 or abs(qy) > 1e-9:
         # general rotation: express in arm_base axes
-        rot = _quat_to_mat(geom.arm_base_quat)
+        rot = quat_to_mat(geom.arm_base_quat)
         p = rot.T @ p
     return ArmTarget(x=float(p[0]), z=float(p[2]), pitch=pitch, roll=roll), float(p[1])
-
-
-def _quat_to_mat(q: tuple[float, float, float, float]) -> np.ndarray:
-    w, x, y, z = q
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
 
 
 def solve_ik_or_raise(

@@ -233,6 +233,12 @@ class Executive:
             return self._run is not None
 
     @property
+    def running(self) -> bool:
+        """True while a started goal runs (accepted and started, not yet ended)."""
+        run = self._run
+        return run is not None and run.started
+
+    @property
     def active(self) -> Primitive | None:
         """The primitive of the goal holding the slot, if any."""
         run = self._run

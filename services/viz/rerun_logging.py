@@ -31,12 +31,14 @@ import math
 import re
 from collections import deque
 from collections.abc import Sequence
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
-from quadmanip.common import messages as m
+
+if TYPE_CHECKING:  # messages only name the inputs' types: this module imports no transport
+    from quadmanip.common import messages as m
 
 __all__ = [
     "BASE",

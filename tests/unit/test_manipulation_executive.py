@@ -1,0 +1,275 @@
+"""The manipulation executive without transport: arbitration, plan-once, policy, cancel.
+
+A perfect plant stands in for the arm: the measured joints follow the last commanded
+trajectory exactly, and closing fingers stop on a 3 cm object and squeeze it.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+from quadmanip.services.manipulation import executive as ex_mod
+from quadmanip.services.manipulation.arm_kinematics import ArmGeometry
+from quadmanip.services.manipulation.config import load_manipulation_config
+from quadmanip.services.manipulation.executive import (
+    ArmServo,
+    DrawerRequest,
+    Executive,
+    GraspRequest,
+    PayloadUpdate,
+    PlaceRequest,
+    PostureRequest,
+)
+from quadmanip.services.manipulation.gravity import GravityCompensator
+from quadmanip.services.manipulation.gripper import GripState
+from quadmanip.services.manipulation.postures import resolve_postures
+from quadmanip.services.manipulation.primitive import GripperCmd, Observation, Status
+from quadmanip.sim.actuators import hermite
+
+pytestmark = pytest.mark.unit
+
+CFG = load_manipulation_config()
+GEOM = ArmGeometry.from_description()
+POSTURES = resolve_postures(GEOM, CFG)
+GRAVITY = GravityCompensator()
+DT = 0.002
+
+
+def _executive(**kw: object) -> Executive:
+    return Executive(GEOM, CFG, POSTURES, GRAVITY, **kw)  # type: ignore[arg-type]
+
+
+class Plant:
+    """Perfect arm tracking; fingers stop on an object ``width`` wide and squeeze it."""
+
+    def __init__(self, q0: np.ndarray, width: float = 0.03) -> None:
+        self.t = 1.0
+        self.q0 = np.asarray(q0, dtype=float)
+        self.servo: ArmServo | None = None
+        self.gap_cmd = CFG.gripper.open_gap
+        self.width = width
+        self.sent: list[object] = []
+
+    def obs(self) -> Observation:
+        if self.servo is None:
+            q, dq = self.q0.copy(), np.zeros(4)
+        else:
+            q, dq = hermite(self.servo.t, self.servo.q, self.servo.dq, self.t)
+        squeezing = self.gap_cmd < self.width
+        gap = self.width if squeezing else self.gap_cmd
+        return Observation(self.t, q, dq, gap, 20.0 if squeezing else 0.0)
+
+    def apply(self, outputs: list[object]) -> None:
+        for c in outputs:
+            self.sent.append(c)
+            if isinstance(c, ArmServo):
+                self.servo = c
+            elif isinstance(c, GripperCmd):
+                self.gap_cmd = c.gap
+
+    def tick(self, ex: Executive) -> None:
+        self.apply(ex.step(self.obs()))
+        self.t += DT
+
+    def run(self, ex: Executive, timeout: float = 60.0) -> None:
+        t_end = self.t + timeout
+        while ex.running and self.t < t_end:
+            self.tick(ex)
+
+
+def _floor_grasp(ex: Executive, approach: str = "vertical", **kw: object) -> GraspRequest:
+    """A vertical grasp 2.5 cm above the floor, 36 cm ahead: reachable from the stance."""
+    return GraspRequest(position=(0.36, 0.0, ex.floor_z + 0.025), approach=approach, **kw)  # type: ignore[arg-type]
+
+
+def test_accept_and_reject_reasons():
+    ex = _executive()
+    obs = Plant(POSTURES["stow"]).obs()
+    assert ex.accept(PostureRequest("stow"), None).reason.startswith("no_joint_state")
+    assert ex.accept(PostureRequest("dance"), obs).reason.startswith("unknown_posture")
+    far = GraspRequest(position=(2.0, 0.0, -0.2), approach="vertical")
+    assert ex.accept(far, obs).reason.startswith("unreachable")
+    side = GraspRequest(position=(0.4, 0.5, -0.25), approach="vertical")
+    assert ex.accept(side, obs).reason.startswith("lateral_out_of_range")
+    assert ex.accept(PlaceRequest((0.4, 0.0, 0.0)), obs).reason.startswith("not_holding")
+    sideways = DrawerRequest((0.5, 0.0, -0.16), (0.0, 1.0, 0.0))
+    assert ex.accept(sideways, obs).reason.startswith("pull_direction_unsupported")
+    assert not ex.busy  # nothing rejected holds the slot
+    ok = ex.accept(PostureRequest("floor_search"), obs)
+    assert ok.accepted and ok.reason == "" and ex.busy
+    busy = ex.accept(_floor_grasp(ex), obs)
+    assert not busy.accepted and busy.reason == "busy: move_to_posture starting"
+
+
+def test_auto_approach_is_vertical_when_reachable_else_horizontal():
+    ex = _executive()
+    obs = Plant(POSTURES["stow"]).obs()
+    assert ex.accept(_floor_grasp(ex, approach="auto"), obs).accepted
+    assert ex.active.plan.approach == "vertical"  # type: ignore[union-attr]
+    ex = _executive()
+    high = GraspRequest(position=(0.5, 0.0, 0.10), approach="auto")  # too far from above
+    assert ex.accept(high, obs).accepted
+    assert ex.active.plan.approach == "horizontal"  # type: ignore[union-attr]
+
+
+def test_a_goal_is_planned_once(monkeypatch):
+    calls: list[str] = []
+    real = ex_mod.plan_grasp
+
+    def counting(*args: object, **kw: object) -> object:
+        calls.append(str(args[3]))
+        return real(*args, **kw)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(ex_mod, "plan_grasp", counting)
+    ex = _executive()
+    plant = Plant(POSTURES["stow"])
+    token = object()
+    assert ex.accept(_floor_grasp(ex), plant.obs(), token=token).accepted
+    prim = ex.active
+    assert calls == ["vertical"]
+    assert ex.start(token) is prim  # the primitive planned at accept is the one that runs
+    for _ in range(500):
+        plant.tick(ex)
+    assert calls == ["vertical"]
+
+
+def test_no_side_effect_of_a_rejected_or_unstarted_grasp():
+    """Neither a rejected grasp nor an accepted one that never started changes what
+    locomotion is told the gripper holds, or the held object's hang."""
+    ex = _executive()
+    plant = Plant(POSTURES["stow"])
+    heavy = GraspRequest(position=(2.0, 0.0, -0.2), approach="vertical", mass=0.4, hang=0.2)
+    assert not ex.accept(heavy, plant.obs(), token="a").accepted
+    assert ex.accept(_floor_grasp(ex, mass=0.4, object_name="can"), plant.obs(), "b").accepted
+    assert ex.stop(plant.obs()) == []  # the service stops before the goal started
+    assert not ex.busy and ex.start("b") is None
+    # the fingers now squeeze something (a drawer handle, say): nothing is announced held
+    ex.monitor.command_close(plant.t)
+    plant.gap_cmd = 0.0
+    for _ in range(200):
+        plant.tick(ex)
+    updates = [c for c in plant.sent if isinstance(c, PayloadUpdate)]
+    assert updates and updates[-1].grip is GripState.HOLDING
+    assert all(u.mass == 0.0 and u.object_name == "" for u in updates)
+    assert ex.hang == CFG.executive.default_hang
+
+
+def test_grasp_runs_announces_its_payload_and_measures_the_hang():
+    ex = _executive()
+    plant = Plant(POSTURES["stow"])
+    req = _floor_grasp(ex, mass=0.35, object_name="tomato_soup_can")
+    assert ex.accept(req, plant.obs(), token=req).accepted
+    assert ex.start(req) is not None
+    plant.run(ex)
+    assert not ex.busy and ex.active is None
+    assert ex.hang == pytest.approx(0.025)  # measured: grasp point height above the floor
+    held = [c for c in plant.sent if isinstance(c, PayloadUpdate) and c.mass > 0.0]
+    assert held[0].mass == 0.35 and held[0].object_name == "tomato_soup_can"
+    assert held[0].grip is GripState.HOLDING
+    # every arm trajectory carries the gravity torque of its knots as feed-forward
+    servos = [c for c in plant.sent if isinstance(c, ArmServo)]
+    assert len(servos) >= 3
+    for s in servos:
+        assert s.tau_ff.shape == s.q.shape
+        assert np.allclose(s.tau_ff, GRAVITY.feed_forward(s.q))
+        assert s.kp == tuple(CFG.motion.kp) and s.kd == tuple(CFG.motion.kd)
+    assert np.abs(servos[-1].tau_ff).max() > 0.1
+    # the goal's own hang wins over the measurement; a table grasp takes the default
+    for hang, pos, want in ((0.07, req.position, 0.07), (0.0, (0.5, 0.0, 0.1), None)):
+        ex2 = _executive()
+        plant2 = Plant(POSTURES["stow"])
+        r = GraspRequest(position=pos, approach="auto", hang=hang)  # type: ignore[arg-type]
+        assert ex2.accept(r, plant2.obs()).accepted
+        ex2.start()
+        plant2.run(ex2)
+        assert ex2.hang == pytest.approx(want or CFG.executive.default_hang)
+
+
+def test_two_goals_at_once_one_accepted_one_busy(monkeypatch):
+    """Two goals for two actions at the same moment: exactly one is accepted, the other is
+    rejected "busy", however long planning takes (a check-then-set would let both in)."""
+    ex = _executive()
+    real_plan = ex._plan
+
+    def slow_plan(*args: object) -> object:
+        time.sleep(0.02)  # widen the window between the check and the reservation
+        return real_plan(*args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(ex, "_plan", slow_plan)
+    obs = Plant(POSTURES["stow"]).obs()
+    for _ in range(5):
+        gate = threading.Barrier(2)
+        verdicts: dict[str, object] = {}
+
+        def send(name: str, request: object) -> None:
+            gate.wait()
+            verdicts[name] = ex.accept(request, obs, token=name)  # type: ignore[arg-type]
+
+        threads = [
+            threading.Thread(target=send, args=("posture", PostureRequest("floor_search"))),
+            threading.Thread(target=send, args=("grasp", _floor_grasp(ex))),
+        ]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(5.0)
+        accepted = [n for n, v in verdicts.items() if v.accepted]  # type: ignore[attr-defined]
+        rejected = [v for v in verdicts.values() if not v.accepted]  # type: ignore[attr-defined]
+        assert len(accepted) == 1 and len(rejected) == 1, verdicts
+        assert rejected[0].reason.startswith("busy"), rejected[0]
+        assert ex.start(accepted[0]) is not None
+        ex.stop(obs)  # end it: the slot is free for the next round
+        assert not ex.busy
+
+
+def test_cancel_holds_the_arm_and_frees_the_slot():
+    ex = _executive()
+    plant = Plant(POSTURES["stow"])
+    token = object()
+    assert ex.accept(PostureRequest("floor_search"), plant.obs(), token=token).accepted
+    cancel = threading.Event()
+    feedback: list[tuple[float, str]] = []
+    result: list[object] = []
+    worker = threading.Thread(
+        target=lambda: result.append(
+            ex.execute(
+                token, cancel_requested=cancel.is_set, feedback=lambda p, t: feedback.append((p, t))
+            )
+        )
+    )
+    worker.start()
+    deadline = time.monotonic() + 5.0
+    while not ex.running and time.monotonic() < deadline:
+        time.sleep(0.001)
+    t_cancel = plant.t + 0.3
+    while worker.is_alive() and time.monotonic() < deadline:
+        if plant.t >= t_cancel:
+            cancel.set()
+        plant.tick(ex)
+        time.sleep(0.0005)
+    worker.join(1.0)
+    assert result and result[0].status is Status.CANCELED  # type: ignore[attr-defined]
+    assert result[0].reason == ex_mod.CANCELED_REASON  # type: ignore[attr-defined]
+    assert feedback and feedback[0][1] == "moving"
+    hold = [c for c in plant.sent if isinstance(c, ArmServo)][-1]
+    assert len(hold.t) == 1 and hold.t[0] >= t_cancel  # a one-knot hold at the cancel
+    assert not ex.busy
+    assert ex.accept(PostureRequest("stow"), plant.obs()).accepted
+
+
+def test_an_unstarted_reservation_lapses():
+    now = [0.0]
+    ex = _executive(clock=lambda: now[0])
+    obs = Plant(POSTURES["stow"]).obs()
+    assert ex.accept(PostureRequest("floor_search"), obs, token="a").accepted
+    now[0] = CFG.executive.claim_timeout * 0.5
+    assert ex.accept(PostureRequest("stow"), obs, token="b").reason.startswith("busy")
+    now[0] = CFG.executive.claim_timeout + 0.1  # "a" was refused after its accept
+    assert ex.accept(PostureRequest("stow"), obs, token="b").accepted
+    assert ex.start("a") is None
+    assert ex.execute("a").status is Status.FAILED
+    assert ex.start("b") is not None
+    assert ex.accept(PostureRequest("stow"), obs).reason == "busy: move_to_posture running"
