@@ -1,7 +1,7 @@
 """The robot description: names, loaders and facts read from the one MJCF.
 
 `configs/robot/quadmanip_dog.xml` is the single source of truth for MuJoCo and pinocchio
-(ARCHITECTURE.md, "The robot"). This module gives every service the same names, loads the
+(docs/architecture.md, "One source for every fact"). This module gives every service the same names, loads the
 model for either library, maps MuJoCo's generalized coordinates to pinocchio's, and reads
 dimensions, masses and limits from the model so nobody copies Table 1/Table 2 constants.
 

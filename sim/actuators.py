@@ -2,7 +2,7 @@
 
 Every physics step it turns the latest per-joint commands into motor torques and writes
 them to ``data.ctrl`` of the model's motor actuators. Nothing else in the simulator moves
-the robot (ARCHITECTURE.md, "Honest simulation").
+the robot (docs/architecture.md, "Honest simulation").
 
 * Legs: ``tau = kp (q_des - q) + kd (dq_des - dq) + tau_ff`` (the low-level command of
   Unitree-style SDKs). If no valid leg command arrives for ``leg_timeout`` seconds of sim

@@ -1,7 +1,7 @@
 """``quadmanip service sim``: the simulator as a Zenoh node (the robot's stand-in).
 
-It speaks exactly the keys a hardware adapter would (ARCHITECTURE.md, "Hardware adapter
-contract"): LowState every control tick on ``sim/lowstate``, ``sim/clock``, RGB-D frames on
+It speaks exactly the keys a hardware adapter would (docs/architecture.md, "Processes and
+ownership"): LowState every control tick on ``sim/lowstate``, ``sim/clock``, RGB-D frames on
 ``sim/camera/front`` and ``sim/camera/gripper``, LiDAR on ``sim/scan``; it takes
 ``sim/leg_command``, ``sim/arm_trajectory``, ``sim/gripper_command``. Ground truth goes
 only under ``sim/gt/**`` (base, object and drawer-handle poses, contacts, the judge's report), and the

@@ -25,7 +25,7 @@ Corrections to the paper's OCR'd equations (derived from eq. 1, checked against 
   solutions and the one inside the joint limits closest to a reference is chosen.
 * eq. (9) ``q3 = acos(R11)`` loses the sign; since the remaining rotation is ``Ry(q3)``
   we use ``q3 = atan2(R[0,2], R[0,0])``, which for an in-plane target reduces to
-  ``q3 = pitch - q1 - q2`` (wrapped to (-pi, pi]).
+  ``q3 = pitch - q1 - q2`` (wrapped to [-pi, pi)).
 """
 
 from __future__ import annotations
@@ -223,15 +223,7 @@ def fk_tcp(geom: ArmGeometry, q: np.ndarray | tuple[float, ...]) -> ArmTarget:
     s123, c123 = math.sin(a123), math.cos(a123)
     x = g.d2 * s1 + g.d4 * c12 + g.d3 * s12 + g.d5 * c123
     z = g.d1 + g.d2 * c1 - g.d4 * s12 + g.d3 * c12 - g.d5 * s123
-    return ArmTarget(x=x, z=z, pitch=_wrap(a123), roll=q4)
-
-
-def _wrap(a: float) -> float:
-    """Wraps an angle to (-pi, pi]."""
-    a = math.fmod(a + math.pi, _TWO_PI)
-    if a <= 0.0:
-        a += _TWO_PI
-    return a - math.pi
+    return ArmTarget(x=x, z=z, pitch=wrap_angle(a123), roll=q4)
 
 
 def _in_range(v: float, lo: float, hi: float, tol: float = 1e-12) -> float | None:
@@ -302,9 +294,9 @@ def solve_ik(
         q3 = pitch - q1 - q2
         cand = []
         for qv, k in ((q1, 0), (q2, 1), (q3, 2)):
-            r = _in_range(_wrap(qv), g.q_min[k], g.q_max[k])
+            r = _in_range(wrap_angle(qv), g.q_min[k], g.q_max[k])
             if r is None:
-                why = f"joint arm_j{k + 1}={_wrap(qv):.3f} rad outside [{g.q_min[k]:.3f}, {g.q_max[k]:.3f}]"
+                why = f"joint arm_j{k + 1}={wrap_angle(qv):.3f} rad outside [{g.q_min[k]:.3f}, {g.q_max[k]:.3f}]"
                 break
             cand.append(r)
         else:

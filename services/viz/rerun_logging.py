@@ -36,6 +36,8 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
+from quadmanip.common.joint_layout import ARM_JOINTS, ARM_SLICE, JOINTS, LEG_NAMES
+from quadmanip.common.rotations import quat_from_yaw, quat_to_mat, rot_z, wrap_angle, yaw_from_quat
 
 if TYPE_CHECKING:  # messages only name the inputs' types: this module imports no transport
     from quadmanip.common import messages as m
@@ -43,13 +45,11 @@ if TYPE_CHECKING:  # messages only name the inputs' types: this module imports n
 __all__ = [
     "BASE",
     "EveryNth",
-    "FOOT_NAMES",
     "GT",
     "LOG",
     "ODOM",
     "PLOTS",
     "WORLD",
-    "JOINT_NAMES",
     "TIMELINE",
     "HeartbeatTracker",
     "RecordingLike",
@@ -96,12 +96,7 @@ GT = "world/gt"
 PLOTS = "plots"
 LOG = "log"
 
-# Joint order on the wire (messages.py): legs FL, FR, RL, RR (abad, hip, knee), arm j1..j4.
-# Spelled out rather than imported from robot_description, which pulls in MuJoCo.
-FOOT_NAMES: tuple[str, ...] = ("FL", "FR", "RL", "RR")
-JOINT_NAMES: tuple[str, ...] = tuple(
-    f"{leg}_{k}" for leg in FOOT_NAMES for k in ("abad", "hip", "knee")
-) + ("arm_j1", "arm_j2", "arm_j3", "arm_j4")
+# Joint order on the wire: common/joint_layout.py (no MuJoCo import, unlike the description).
 
 _FOOT_COLORS = np.array(
     [[230, 60, 60], [60, 160, 230], [240, 170, 30], [90, 190, 90]], dtype=np.uint8
@@ -136,23 +131,6 @@ def quat_xyzw(q_wxyz: Sequence[float] | np.ndarray) -> rr.Quaternion:
     return rr.Quaternion(xyzw=[x, y, z, w])
 
 
-def _rot_wxyz(q: np.ndarray) -> np.ndarray:
-    """Rotation matrix of a [w, x, y, z] quaternion (normalised first)."""
-    w, x, y, z = np.asarray(q, dtype=float) / float(np.linalg.norm(q))
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
-def _yaw_wxyz(q: np.ndarray) -> float:
-    w, x, y, z = (float(v) for v in q)
-    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-
-
 def camera_entity(camera: str) -> str:
     """Entity path of a camera (``front_camera`` → ``world/odom/base/front_camera``)."""
     name = _ENTITY_RE.sub("_", camera.strip()) or "camera"
@@ -183,8 +161,8 @@ def log_static_layout(rec: RecordingLike) -> None:
     rec.log(BASE, rr.TransformAxes3D(0.25), static=True)
     rec.log(f"{GT}/base", rr.TransformAxes3D(0.2), static=True)
     for quantity in ("position", "velocity", "torque"):
-        rec.log(f"{PLOTS}/joints/{quantity}", rr.SeriesLines(names=list(JOINT_NAMES)), static=True)
-    arm = list(JOINT_NAMES[12:])
+        rec.log(f"{PLOTS}/joints/{quantity}", rr.SeriesLines(names=list(JOINTS)), static=True)
+    arm = list(ARM_JOINTS)
     rec.log(f"{PLOTS}/arm/q", rr.SeriesLines(names=arm), static=True)
     rec.log(
         f"{PLOTS}/arm/q_cmd",
@@ -198,7 +176,7 @@ def log_static_layout(rec: RecordingLike) -> None:
     for what in ("foot_force_z", "gait_phase", "contact"):
         rec.log(
             f"{PLOTS}/locomotion/{what}",
-            rr.SeriesLines(names=list(FOOT_NAMES), colors=_FOOT_COLORS),
+            rr.SeriesLines(names=list(LEG_NAMES), colors=_FOOT_COLORS),
             static=True,
         )
     colors = {"cmd": [150, 150, 150], "odom": _ODOM_COLOR, "gt": _GT_COLOR}
@@ -249,7 +227,7 @@ def log_lowstate(rec: RecordingLike, msg: m.LowState) -> None:
     rec.log(f"{PLOTS}/joints/position", rr.Scalars(js.q))
     rec.log(f"{PLOTS}/joints/velocity", rr.Scalars(js.dq))
     rec.log(f"{PLOTS}/joints/torque", rr.Scalars(js.tau))
-    rec.log(f"{PLOTS}/arm/q", rr.Scalars(js.q[12:]))
+    rec.log(f"{PLOTS}/arm/q", rr.Scalars(js.q[ARM_SLICE]))
     rec.log(f"{PLOTS}/gripper/gap", rr.Scalars(js.gripper_gap))
     rec.log(f"{PLOTS}/gripper/effort", rr.Scalars(js.gripper_effort))
     rec.log(f"{PLOTS}/imu/angular_velocity", rr.Scalars(msg.imu.angular_velocity))
@@ -388,7 +366,7 @@ def log_foot_forces(
     Arrows live under the base entity, so the world-frame forces are rotated into the base
     frame with the base orientation (``R^T f``).
     """
-    r = _rot_wxyz(base_orientation_wxyz)
+    r = quat_to_mat(base_orientation_wxyz)
     vectors = (np.asarray(forces_world, dtype=float) @ r) * metres_per_newton  # rows: R^T f
     set_time(rec, stamp)
     rec.log(
@@ -676,11 +654,9 @@ def odom_in_world(
     takes roll/pitch from the IMU), so only a yaw and a translation separate the frames;
     a full SE(3) from one sample would tilt the whole odom tree by the estimate's error.
     """
-    yaw = _yaw_wxyz(gt_orientation) - _yaw_wxyz(odom_orientation)
-    c, s = math.cos(yaw), math.sin(yaw)
-    rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    t = np.asarray(gt_position, dtype=float) - rz @ np.asarray(odom_position, dtype=float)
-    return t, math.atan2(s, c)
+    yaw = yaw_from_quat(gt_orientation) - yaw_from_quat(odom_orientation)
+    t = np.asarray(gt_position, dtype=float) - rot_z(yaw) @ np.asarray(odom_position, dtype=float)
+    return t, wrap_angle(yaw)
 
 
 def log_odom_alignment(
@@ -692,7 +668,7 @@ def log_odom_alignment(
         ODOM,
         rr.Transform3D(
             translation=translation,
-            quaternion=quat_xyzw([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]),
+            quaternion=quat_xyzw(quat_from_yaw(yaw)),
         ),
     )
     rec.log(
@@ -723,7 +699,7 @@ class VelocityFromPoses:
     ) -> tuple[float, float, float] | None:
         """Feed a pose; returns (vx, vy, wz) in the base frame when enough time passed."""
         p = np.asarray(position, dtype=np.float64)
-        yaw = _yaw_wxyz(orientation_wxyz)
+        yaw = yaw_from_quat(orientation_wxyz)
         if self._prev is None or stamp < self._prev[0]:
             self._prev = (stamp, p, yaw)
             return None
@@ -733,6 +709,6 @@ class VelocityFromPoses:
             return None
         self._prev = (stamp, p, yaw)
         v_world = (p - p0) / dt
-        v_base = _rot_wxyz(orientation_wxyz).T @ v_world
-        dyaw = math.atan2(math.sin(yaw - yaw0), math.cos(yaw - yaw0))
+        v_base = quat_to_mat(orientation_wxyz).T @ v_world
+        dyaw = wrap_angle(yaw - yaw0)
         return float(v_base[0]), float(v_base[1]), dyaw / dt

@@ -173,9 +173,11 @@ def test_bad_arm_and_gripper_commands_rejected(layer):
     assert not act.set_arm_trajectory(0, t, q, q, np.ones(5), k)
     assert not act.set_arm_trajectory(0, np.array([0.0, np.nan]), q, q, k, k)
     assert not act.set_arm_trajectory(0, np.array([1.0, 0.5]), q, q, k, k)
+    assert not act.set_arm_trajectory(0, t, q, q, k, k, np.zeros((3, 4)))  # tau_ff per knot
+    assert not act.set_arm_trajectory(0, t, q, q, k, k, np.full((2, 4), np.inf))
     assert not act.set_gripper_command(0, float("nan"), 10.0)
     assert not act.set_gripper_command(0, 0.02, -1.0)
-    assert act.rejected == 6
+    assert act.rejected == 8
     act.apply(d)
     assert np.all(np.isfinite(d.ctrl))
 
@@ -237,6 +239,30 @@ def test_arm_trajectory_drives_pd_and_replacement_starts_at_its_first_stamp(laye
     d.time = 5.0
     act.apply(d)
     np.testing.assert_allclose(d.ctrl[act.arm.act], 0.75 * kp * -1.0)
+
+
+def test_arm_feed_forward_is_interpolated_added_to_the_pd_and_clamped(layer):
+    m, d, act = layer
+    kp, kd = np.full(4, 8.0), np.full(4, 0.3)
+    t = np.array([0.0, 1.0, 2.0])
+    q = np.array([[0.0] * 4, [1.0] * 4, [1.0] * 4])
+    dq = np.zeros((3, 4))
+    ff = np.array([[1.0, -1.0, 0.0, 2.0], [3.0, -3.0, 4.0, 2.0], [30.0, -30.0, 4.0, 2.0]])
+    assert act.set_arm_trajectory(d.time, t, q, dq, kp, kd, ff)
+    for now, ff_now in ((0.25, [1.5, -1.5, 1.0, 2.0]), (1.0, ff[1]), (1.5, [16.5, -16.5, 4, 2])):
+        d.time = now
+        act.apply(d)
+        q_d, dq_d = hermite(t, q, dq, now)
+        want = np.clip(kp * q_d + kd * dq_d + np.asarray(ff_now), -TAU_ARM, TAU_ARM)
+        np.testing.assert_allclose(d.ctrl[act.arm.act], want)  # linear in time, then clamped
+    d.time = 9.0  # after the end: the last knot's feed-forward is held
+    act.apply(d)
+    np.testing.assert_allclose(d.ctrl[act.arm.act], np.clip(kp * 1.0 + ff[2], -TAU_ARM, TAU_ARM))
+    # without tau_ff (a 1.0 sender) there is no feed-forward
+    assert act.set_arm_trajectory(d.time, np.array([10.0]), q[:1], dq[:1], kp, kd)
+    d.time = 10.0
+    act.apply(d)
+    np.testing.assert_allclose(d.ctrl[act.arm.act], 0.0)
 
 
 def test_arm_follows_trajectory_in_physics(layer):

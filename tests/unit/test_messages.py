@@ -155,6 +155,12 @@ def test_cross_field_checks() -> None:
                         kp=[1] * 4, kd=[0] * 4)  # fmt: skip
     with pytest.raises(MessageError, match="at least one"):
         m.ArmTrajectory(stamp=0, t=[], q=[], dq=[], kp=[1] * 4, kd=[0] * 4)
+    with pytest.raises(MessageError, match="tau_ff"):
+        m.ArmTrajectory(stamp=0, t=[0.0, 1.0], q=np.zeros((2, 4)), dq=np.zeros((2, 4)),
+                        kp=[1] * 4, kd=[0] * 4, tau_ff=np.zeros((3, 4)))  # fmt: skip
+    with pytest.raises(MessageError, match="tau_ff"):
+        m.ArmTrajectory(stamp=0, t=[0.0, 1.0], q=np.zeros((2, 4)), dq=np.zeros((2, 4)),
+                        kp=[1] * 4, kd=[0] * 4, tau_ff=np.full((2, 4), np.nan))  # fmt: skip
     with pytest.raises(MessageError, match="unit quaternion"):
         m.example(m.Imu, orientation=[0, 0, 0, 0])
     with pytest.raises(MessageError, match="differ"):
@@ -270,6 +276,27 @@ def test_missing_fields_defaulted_or_rejected() -> None:
     assert not back2.mpc_predicted_positions.flags.writeable
     with pytest.raises(MessageError, match="missing field 'force'"):
         decode(_edit(dist, lambda o: o[3].pop("force")))
+
+
+def test_arm_trajectory_feed_forward_per_knot_zeros_from_a_1_0_sender() -> None:
+    ff = np.arange(8.0).reshape(2, 4)
+    traj = m.ArmTrajectory(stamp=0.0, t=[0.0, 0.5], q=np.zeros((2, 4)), dq=np.zeros((2, 4)),
+                           kp=[1] * 4, kd=[0] * 4, tau_ff=ff)  # fmt: skip
+    assert m.ArmTrajectory.VERSION == (1, 1)
+    assert decode(encode(traj)) == traj and np.array_equal(traj.tau_ff, ff)
+    # left out on construction, or sent by a 1.0 sender: zeros, one row per knot
+    plain = traj.replace(tau_ff=np.zeros((0, 4)))
+    assert plain.tau_ff.shape == (2, 4) and not plain.tau_ff.any()
+    assert not plain.tau_ff.flags.writeable
+
+    def old_sender(o: list) -> None:
+        o[2] = 0
+        o[3].pop("tau_ff")
+
+    back = decode(_edit(traj, old_sender), m.ArmTrajectory)
+    assert back == plain
+    with pytest.raises(MessageError, match="tau_ff"):  # rows must match the knots
+        decode(_edit(traj, lambda o: o[3].__setitem__("tau_ff", ["<f8", [1, 4], b"\0" * 32])))
 
 
 WRONG_TYPE_VALUES = ["text", 1.5, -3, True, None, [1, 2], {"a": 1}, b"\x00" * 8]

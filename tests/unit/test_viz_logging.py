@@ -89,7 +89,7 @@ def test_lowstate_plots_every_joint_on_robot_time(recording: Recording) -> None:
 
     pos = rows["/plots/joints/position"]
     names = [r for r in pos if r["static"]][0]["SeriesLines:names"]
-    assert names == list(rl.JOINT_NAMES) and len(names) == 16
+    assert names == list(JOINTS) and len(names) == 16
     assert names[:3] == ["FL_abad", "FL_hip", "FL_knee"] and names[12] == "arm_j1"
     data = [r for r in pos if not r["static"]]
     assert len(data) == 1 and data[0][rl.TIMELINE] == pytest.approx(2.5)
