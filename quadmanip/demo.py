@@ -171,8 +171,8 @@ class RoundTrip:
     """Joint commands through the router to an echo process and back, at ``rate_hz``."""
 
     def __init__(self, bus: object, connect: str, rate_hz: float = 100.0) -> None:
-        from quadmanip.testbench import bench_bus as bb
         from quadmanip.common.messages import LegCommand
+        from quadmanip.testbench import bench_bus as bb
 
         self._bb = bb
         self.echo = subprocess.Popen(

@@ -66,6 +66,8 @@ def bench_ik(n: int, seed: int = 0) -> dict[str, Any]:
 
 
 def _grasp_trial(name: str, where: str, rng: np.random.Generator) -> dict[str, Any]:
+    from quadmanip.services.manipulation.grasp import GraspPrimitive, GraspRejected
+    from quadmanip.services.manipulation.primitive import Status
     from quadmanip.testbench.manipulation_scenes import (
         TABLE_HEIGHT,
         PlacedObject,
@@ -74,8 +76,6 @@ def _grasp_trial(name: str, where: str, rng: np.random.Generator) -> dict[str, A
         plan_grasp_from_ground_truth,
         table_boxes,
     )
-    from quadmanip.services.manipulation.grasp import GraspPrimitive, GraspRejected
-    from quadmanip.services.manipulation.primitive import Status
 
     cfg = load_manipulation_config()
     geom = ArmGeometry.from_description()
@@ -135,6 +135,11 @@ def _grasp_trial(name: str, where: str, rng: np.random.Generator) -> dict[str, A
 
 
 def _place_trial(name: str) -> dict[str, Any]:
+    from quadmanip.services.manipulation.grasp import GraspPrimitive, GraspRejected
+    from quadmanip.services.manipulation.place import PlacePrimitive, plan_place
+    from quadmanip.services.manipulation.primitive import Status
+    from quadmanip.sim.world.house import load_house
+    from quadmanip.sim.world.objects import load_catalogue
     from quadmanip.testbench.manipulation_scenes import (
         TABLE_HEIGHT,
         PlacedObject,
@@ -144,11 +149,6 @@ def _place_trial(name: str) -> dict[str, Any]:
         plan_grasp_from_ground_truth,
         table_boxes,
     )
-    from quadmanip.services.manipulation.grasp import GraspPrimitive, GraspRejected
-    from quadmanip.services.manipulation.place import PlacePrimitive, plan_place
-    from quadmanip.services.manipulation.primitive import Status
-    from quadmanip.sim.world.house import load_house
-    from quadmanip.sim.world.objects import load_catalogue
 
     cfg = load_manipulation_config()
     geom = ArmGeometry.from_description()
@@ -214,6 +214,12 @@ def _place_trial(name: str) -> dict[str, Any]:
 
 def _drawer_place_trial(name: str, out: dict[str, Any]) -> dict[str, Any]:
     """Tools go into the top drawer: open it, carry posture, grasp from a stool, place."""
+    from quadmanip.services.manipulation.drawer import DrawerPrimitive, plan_drawer
+    from quadmanip.services.manipulation.grasp import GraspPrimitive, GraspRejected, plan_grasp
+    from quadmanip.services.manipulation.place import PlacePrimitive, plan_place
+    from quadmanip.services.manipulation.postures import resolve_postures
+    from quadmanip.services.manipulation.primitive import BodyPoseRequest, PostureMove, Status
+    from quadmanip.sim.world.objects import load_catalogue
     from quadmanip.testbench.manipulation_scenes import (
         SimHarness,
         drawer_mouth,
@@ -221,12 +227,6 @@ def _drawer_place_trial(name: str, out: dict[str, Any]) -> dict[str, Any]:
         grasp_from_ground_truth,
         in_region,
     )
-    from quadmanip.services.manipulation.drawer import DrawerPrimitive, plan_drawer
-    from quadmanip.services.manipulation.grasp import GraspPrimitive, GraspRejected, plan_grasp
-    from quadmanip.services.manipulation.place import PlacePrimitive, plan_place
-    from quadmanip.services.manipulation.postures import resolve_postures
-    from quadmanip.services.manipulation.primitive import BodyPoseRequest, PostureMove, Status
-    from quadmanip.sim.world.objects import load_catalogue
 
     cfg = load_manipulation_config()
     geom = ArmGeometry.from_description()
@@ -299,8 +299,8 @@ def _drawer_place_trial(name: str, out: dict[str, Any]) -> dict[str, Any]:
 
 
 def _drawer_trial(which: str) -> dict[str, Any]:
-    from quadmanip.testbench.manipulation_scenes import SimHarness, drawer_world
     from quadmanip.services.manipulation.drawer import DrawerPrimitive, plan_drawer
+    from quadmanip.testbench.manipulation_scenes import SimHarness, drawer_world
 
     cfg = load_manipulation_config()
     geom = ArmGeometry.from_description()

@@ -14,6 +14,12 @@ from typing import Any
 
 import mujoco
 import numpy as np
+from quadmanip.services.manipulation.arm_kinematics import ArmGeometry
+from quadmanip.services.manipulation.config import ManipulationConfig, load_manipulation_config
+from quadmanip.services.manipulation.drawer import DrawerPrimitive, plan_drawer
+from quadmanip.services.manipulation.grasp import GraspPrimitive, plan_grasp
+from quadmanip.services.manipulation.place import PlacePrimitive, plan_place
+from quadmanip.services.manipulation.primitive import Primitive
 from quadmanip.testbench.manipulation_scenes import (
     TABLE_HEIGHT,
     PlacedObject,
@@ -24,12 +30,6 @@ from quadmanip.testbench.manipulation_scenes import (
     grasp_from_ground_truth,
     table_boxes,
 )
-from quadmanip.services.manipulation.arm_kinematics import ArmGeometry
-from quadmanip.services.manipulation.config import ManipulationConfig, load_manipulation_config
-from quadmanip.services.manipulation.drawer import DrawerPrimitive, plan_drawer
-from quadmanip.services.manipulation.grasp import GraspPrimitive, plan_grasp
-from quadmanip.services.manipulation.place import PlacePrimitive, plan_place
-from quadmanip.services.manipulation.primitive import Primitive
 
 __all__ = ["main"]
 

@@ -22,12 +22,11 @@ from typing import Any
 
 import mujoco
 import numpy as np
-from quadmanip.common import messages as m
 from quadmanip.common import robot_description as rd
-from quadmanip.testbench.manipulation_record import contact_sheet
-from quadmanip.testbench.stack import StackRun, rot
 from quadmanip.sim.scenarios import Scenario
 from quadmanip.sim.world import build_world
+from quadmanip.testbench.manipulation_record import contact_sheet
+from quadmanip.testbench.stack import StackRun, rot
 
 __all__ = ["StackFilm", "main"]
 

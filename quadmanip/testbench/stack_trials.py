@@ -27,11 +27,11 @@ from typing import Any, TextIO
 
 import numpy as np
 from quadmanip.common import messages as m
-from quadmanip.testbench.manipulation_scenes import GraspSpec, grasp_from_poses
-from quadmanip.testbench.stack import StackError, StackRun, rot
 from quadmanip.sim.scenarios import Placement, Scenario
 from quadmanip.sim.world.house import DRAWER_FRONT_THICKNESS, HouseConfig, load_house
 from quadmanip.sim.world.objects import Catalogue, load_catalogue
+from quadmanip.testbench.manipulation_scenes import GraspSpec, grasp_from_poses
+from quadmanip.testbench.stack import StackError, StackRun, rot
 
 __all__ = [
     "drawer_scenario",

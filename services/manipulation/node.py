@@ -31,11 +31,13 @@ from quadmanip.services.manipulation.executive import (
     DrawerRequest,
     Executive,
     GraspRequest,
-    Output as ExecOutput,
     PayloadUpdate,
     PlaceRequest,
     PostureRequest,
     Request,
+)
+from quadmanip.services.manipulation.executive import (
+    Output as ExecOutput,
 )
 from quadmanip.services.manipulation.primitive import (
     BodyPoseRequest,

@@ -28,6 +28,7 @@ import numpy as np
 from quadmanip.common import keys
 from quadmanip.common import messages as m
 from quadmanip.common.bus import TypedSubscriber
+from quadmanip.common.rotations import mat_to_quat
 from quadmanip.common.service import Input, Service, run_service
 from quadmanip.services.viz import rerun_logging as rl
 from quadmanip.services.viz.config import VizConfig
@@ -63,9 +64,7 @@ def lidar_mount_from_description(model: Any = None) -> tuple[np.ndarray, np.ndar
     r_base = data.xmat[bid].reshape(3, 3)
     pos = r_base.T @ (data.site_xpos[sid] - data.xpos[bid])
     rot = r_base.T @ data.site_xmat[sid].reshape(3, 3)
-    quat = np.zeros(4)
-    mujoco.mju_mat2Quat(quat, rot.reshape(-1))
-    return pos, quat
+    return pos, mat_to_quat(rot)
 
 
 class VizNode(Service):
@@ -88,9 +87,7 @@ class VizNode(Service):
         Input("sim/gt/objects", latest_only=True, doc="GROUND TRUTH objects"),
         Input("sim/gt/contacts", latest_only=True, doc="GT contacts"),
         Input("sim/gt/judge", doc="judge verdicts (text log)"),
-    ) + tuple(
-        Input(f"{s}/heartbeat", doc="state changes (text log)") for s in keys.SERVICES
-    )
+    ) + tuple(Input(f"{s}/heartbeat", doc="state changes (text log)") for s in keys.SERVICES)
     outputs = ()
     loop_period = 0.25  # step(): periodic counter report
 

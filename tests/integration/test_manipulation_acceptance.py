@@ -16,8 +16,8 @@ from __future__ import annotations
 import io
 
 import pytest
-from quadmanip.testbench import stack_trials
 from quadmanip.sim.world.objects import load_catalogue
+from quadmanip.testbench import stack_trials
 
 pytestmark = pytest.mark.integration
 

@@ -24,11 +24,11 @@ import sys
 import numpy as np
 import pytest
 from quadmanip.common import messages as m
-from quadmanip.testbench.manipulation_scenes import TABLE_HEIGHT, grasp_from_poses
-from quadmanip.testbench.stack import ActionOutcome, StackRun, rot
 from quadmanip.sim.scenarios import get_scenario
 from quadmanip.sim.world.house import load_house
 from quadmanip.sim.world.objects import load_catalogue
+from quadmanip.testbench.manipulation_scenes import TABLE_HEIGHT, grasp_from_poses
+from quadmanip.testbench.stack import ActionOutcome, StackRun, rot
 
 pytestmark = pytest.mark.integration
 

@@ -16,9 +16,8 @@ import re
 import time
 
 import pytest
-import qm_keys
 import qm_examples
-from quadmanip.common.messages import Clock
+import qm_keys
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(90)]
 

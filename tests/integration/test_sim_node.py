@@ -28,14 +28,14 @@ class Collector:
         self.stamps: dict[str, list[float]] = {}
         self.ticks: list[int] = []
         self.last: dict[str, object] = {}
-        topics = {
-            "sim/lowstate": msg.LowState,
-            "sim/camera/front": msg.RgbdImage,
-            "sim/camera/gripper": msg.RgbdImage,
-            "sim/scan": msg.LaserScan,
-            "sim/gt/base": msg.GroundTruthPoses,
-        }
-        for topic, t in topics.items():
+        topics = (
+            "sim/lowstate",
+            "sim/camera/front",
+            "sim/camera/gripper",
+            "sim/scan",
+            "sim/gt/base",
+        )
+        for topic in topics:
             self.stamps[topic] = []
             bus.subscribe(topic, self._cb(topic))
 

@@ -135,7 +135,9 @@ def _service_class(name: str) -> type:
     return found[0]
 
 
-@pytest.mark.parametrize("name", __import__("quadmanip.services_registry").services_registry.names())
+@pytest.mark.parametrize(
+    "name", __import__("quadmanip.services_registry").services_registry.names()
+)
 def test_every_registered_service_declares_rows_of_the_table(name: str) -> None:
     cls = _service_class(name)
     assert cls.key_table is keys.TABLE  # the product table, never an extension

@@ -16,12 +16,12 @@ import mujoco
 import numpy as np
 import pytest
 from quadmanip.common import robot_description as rd
-from quadmanip.testbench.locomotion_plant import SimPlant, controller_step
 from quadmanip.services.locomotion.controller import (
     CommandError,
     LocomotionController,
     load_locomotion_config,
 )
+from quadmanip.testbench.locomotion_plant import SimPlant, controller_step
 
 pytestmark = pytest.mark.unit
 
@@ -246,8 +246,8 @@ def test_sit_down_and_damp():
 
 def test_node_helpers_held_mass_and_quaternion():
     from quadmanip.common import messages as m
-    from quadmanip.services.locomotion.controller import NodeOptions
     from quadmanip.common.rotations import mat_to_quat, quat_to_mat
+    from quadmanip.services.locomotion.controller import NodeOptions
     from quadmanip.services.locomotion.node import held_mass
 
     opt = NodeOptions(held_object_mass=0.5, grip_effort_threshold=2.0, grip_min_gap=0.005)

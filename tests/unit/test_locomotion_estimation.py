@@ -6,8 +6,8 @@ import mujoco
 import numpy as np
 import pytest
 from quadmanip.common import robot_description as rd
-from quadmanip.services.locomotion.leg_kinematics import FOOT_SITES, LegKinematics
 from quadmanip.common.rotations import quat_to_mat, rpy_from_mat
+from quadmanip.services.locomotion.leg_kinematics import FOOT_SITES, LegKinematics
 from quadmanip.services.locomotion.state_estimator import EstimatorParams, StateEstimator
 
 pytestmark = pytest.mark.unit

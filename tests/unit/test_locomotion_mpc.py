@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from quadmanip.services.locomotion.controller import default_profiles
 from quadmanip.common.rotations import rot_z
+from quadmanip.services.locomotion.controller import default_profiles
 from quadmanip.services.locomotion.convex_mpc import (
     GRAVITY,
     ConvexMpc,

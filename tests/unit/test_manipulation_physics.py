@@ -12,6 +12,14 @@ import math
 import mujoco
 import numpy as np
 import pytest
+from quadmanip.services.manipulation.arm_kinematics import ArmGeometry
+from quadmanip.services.manipulation.config import load_manipulation_config
+from quadmanip.services.manipulation.drawer import DrawerPrimitive, plan_drawer
+from quadmanip.services.manipulation.grasp import GraspPrimitive, plan_grasp
+from quadmanip.services.manipulation.place import PlacePrimitive, plan_place
+from quadmanip.services.manipulation.postures import resolve_postures
+from quadmanip.services.manipulation.primitive import PostureMove, Status
+from quadmanip.sim.world.objects import load_catalogue
 from quadmanip.testbench.manipulation_scenes import (
     TABLE_HEIGHT,
     PlacedObject,
@@ -25,14 +33,6 @@ from quadmanip.testbench.manipulation_scenes import (
     in_region,
     table_boxes,
 )
-from quadmanip.services.manipulation.arm_kinematics import ArmGeometry
-from quadmanip.services.manipulation.config import load_manipulation_config
-from quadmanip.services.manipulation.drawer import DrawerPrimitive, plan_drawer
-from quadmanip.services.manipulation.grasp import GraspPrimitive, plan_grasp
-from quadmanip.services.manipulation.place import PlacePrimitive, plan_place
-from quadmanip.services.manipulation.postures import resolve_postures
-from quadmanip.services.manipulation.primitive import PostureMove, Status
-from quadmanip.sim.world.objects import load_catalogue
 
 pytestmark = pytest.mark.unit
 

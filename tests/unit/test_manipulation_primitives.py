@@ -4,7 +4,6 @@ import math
 
 import numpy as np
 import pytest
-from quadmanip.testbench.manipulation_scenes import PlacedObject, SimHarness
 from quadmanip.services.locomotion.controller import load_locomotion_config
 from quadmanip.services.manipulation.arm_kinematics import ArmGeometry, fk_tcp
 from quadmanip.services.manipulation.config import load_manipulation_config
@@ -19,6 +18,7 @@ from quadmanip.services.manipulation.primitive import (
     Observation,
     Status,
 )
+from quadmanip.testbench.manipulation_scenes import PlacedObject, SimHarness
 
 pytestmark = pytest.mark.unit
 

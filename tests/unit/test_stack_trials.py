@@ -12,9 +12,9 @@ import mujoco
 import numpy as np
 import pytest
 from quadmanip.common import robot_description as rd
-from quadmanip.testbench import stack_trials as st
 from quadmanip.sim.scenarios import object_contacts
 from quadmanip.sim.world import build_world, load_catalogue
+from quadmanip.testbench import stack_trials as st
 
 pytestmark = pytest.mark.unit
 

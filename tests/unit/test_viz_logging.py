@@ -17,6 +17,8 @@ import pyarrow as pa
 import pytest
 import rerun as rr
 from quadmanip.common import messages as m
+from quadmanip.common.joint_layout import JOINTS
+from quadmanip.common.rotations import quat_from_yaw
 from quadmanip.services.viz import rerun_logging as rl
 from rerun.chunk import RrdReader
 
@@ -67,10 +69,6 @@ def recording(tmp_path: Path) -> Recording:
     return Recording(tmp_path / "t.rrd")
 
 
-def _quat_z(yaw: float) -> np.ndarray:
-    return np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
-
-
 # --------------------------------------------------------------------------- robot state
 
 
@@ -111,7 +109,7 @@ def test_odometry_moves_the_base_frame_and_plots_velocity(recording: Recording) 
     odo = m.Odometry(
         stamp=1.0,
         position=[1.0, -2.0, 0.3],
-        orientation=_quat_z(yaw),
+        orientation=quat_from_yaw(yaw),
         linear_velocity=[0.4, 0.1, 0.0],
         angular_velocity=[0.0, 0.0, 0.25],
     )
@@ -264,7 +262,7 @@ def test_scan_logged_under_the_lidar_mount(recording: Recording) -> None:
 
 def test_ground_truth_has_its_own_tree(recording: Recording) -> None:
     base = m.GroundTruthPoses(
-        stamp=4.0, names=["base"], positions=[[0.5, 0.2, 0.31]], orientations=[_quat_z(0.1)]
+        stamp=4.0, names=["base"], positions=[[0.5, 0.2, 0.31]], orientations=[quat_from_yaw(0.1)]
     )
     objs = m.GroundTruthPoses(
         stamp=4.0,
@@ -384,7 +382,7 @@ def test_ground_truth_velocity_in_the_base_frame() -> None:
         # Straight-line world motion along +y is exact only at the start: use short steps
         # and compare the first few estimates.
         pos = np.array([0.0, 0.5 * t, 0.3])
-        v = est.update(t, pos, _quat_z(yaw))
+        v = est.update(t, pos, quat_from_yaw(yaw))
         if v is not None:
             out.append((t, v))
     t1, (vx, vy, wz) = out[0]
@@ -394,8 +392,8 @@ def test_ground_truth_velocity_in_the_base_frame() -> None:
     assert vx == pytest.approx(0.5 * math.cos(0.3 * t1), rel=1e-6)  # heading drifted 0.3 t
     # Yaw wraps across ±π without a spike.
     est = rl.VelocityFromPoses(min_dt=0.0)
-    est.update(0.0, np.zeros(3), _quat_z(math.pi - 0.01))
-    _, _, wz = est.update(0.1, np.zeros(3), _quat_z(-math.pi + 0.01))
+    est.update(0.0, np.zeros(3), quat_from_yaw(math.pi - 0.01))
+    _, _, wz = est.update(0.1, np.zeros(3), quat_from_yaw(-math.pi + 0.01))
     assert wz == pytest.approx(0.2)
 
 
@@ -404,7 +402,7 @@ def test_odom_in_world_maps_the_estimate_onto_the_truth() -> None:
     # and the estimate now reads (0.1, 0.0) with yaw 0.2 (e.g. yaw drift of 0.3 rad).
     p_gt, yaw_gt = np.array([0.8, 1.2, 0.30]), 0.5
     p_od, yaw_od = np.array([0.1, 0.0, 0.29]), 0.2
-    t, yaw = rl.odom_in_world(p_gt, _quat_z(yaw_gt), p_od, _quat_z(yaw_od))
+    t, yaw = rl.odom_in_world(p_gt, quat_from_yaw(yaw_gt), p_od, quat_from_yaw(yaw_od))
     assert yaw == pytest.approx(0.3)
     c, s = math.cos(yaw), math.sin(yaw)
     rz = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
