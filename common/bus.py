@@ -57,7 +57,7 @@ import threading
 import time
 import weakref
 from collections.abc import Callable, Iterable
-from typing import Any, Generic, Literal, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, Literal, TypeVar
 
 import zenoh
 from quadmanip.common import keys
@@ -65,15 +65,12 @@ from quadmanip.common.config import load_config
 from quadmanip.common.log import get_logger
 from quadmanip.common.schema import Message, MessageError, decode, encode
 
+if TYPE_CHECKING:
+    from quadmanip.common.actions import ActionClient, ActionServer, GoalHandle
+
 __all__ = [
-    "ActionCanceled",
-    "ActionClient",
-    "ActionFailed",
-    "ActionServer",
     "Bus",
     "BusConfig",
-    "ClientGoalHandle",
-    "GoalHandle",
     "LatestCache",
     "LivelinessWatcher",
     "TypedPublisher",
@@ -711,12 +708,16 @@ class Bus:
     ) -> ActionServer:
         """Serve action ``<service>/action/<name>`` (a key-table row, which gives the goal
         type); see :class:`ActionServer`."""
+        from quadmanip.common.actions import ActionServer
+
         goal_type = self.table.action(service, name).goal_type
         return self._track(ActionServer(self, service, name, goal_type, execute, accept, policy))
 
     def action_client(self, service: str, name: str) -> ActionClient:
         """A client of action ``<service>/action/<name>`` (a key-table row); see
         :class:`ActionClient`."""
+        from quadmanip.common.actions import ActionClient
+
         goal_type = self.table.action(service, name).goal_type
         return self._track(ActionClient(self, service, name, goal_type))
 
@@ -752,12 +753,17 @@ class Bus:
         self.close()
 
 
-# Imported last: the action classes build on the publishers and subscribers above.
-from quadmanip.common.actions import (  # noqa: E402
-    ActionCanceled,
-    ActionClient,
-    ActionFailed,
-    ActionServer,
-    ClientGoalHandle,
-    GoalHandle,
+_ACTION_NAMES = frozenset(
+    {"ActionCanceled", "ActionClient", "ActionFailed", "ActionServer", "ClientGoalHandle"}
+    | {"GoalHandle"}
 )
+
+
+def __getattr__(name: str) -> Any:
+    """The action names, re-exported from :mod:`quadmanip.common.actions` on first use
+    (that module builds on this one, so it cannot be imported at the top)."""
+    if name in _ACTION_NAMES:
+        from quadmanip.common import actions
+
+        return getattr(actions, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

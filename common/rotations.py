@@ -100,7 +100,7 @@ def quat_from_euler_xyz(angles: Sequence[float], degrees: bool = False) -> np.nd
 
 
 def yaw_from_quat(q: QuatLike) -> float:
-    """Yaw (ZYX, rad, in [-pi, pi]) of a quaternion; need not be normalised."""
+    """Yaw (ZYX, rad, in [-pi, pi]) of a unit quaternion."""
     w, x, y, z = (float(v) for v in q)
     return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 

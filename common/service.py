@@ -157,6 +157,10 @@ class Service:
         """Raise ``ValueError`` naming every declared input, output or action that is not a
         row of :attr:`key_table` (``run_service`` calls this before anything starts)."""
         problems = []
+        try:
+            cls.key_table.topic(f"{cls.name}/heartbeat")
+        except KeyError as exc:
+            problems.append(f"heartbeat: {exc}")
         for inp in cls.inputs:
             try:
                 cls.key_table.message_type(inp.topic)

@@ -18,6 +18,7 @@ import pytest
 import qm_examples
 import qm_keys
 import zenoh
+from quadmanip.common.actions import ActionClient
 from quadmanip.common.messages import Clock, Heartbeat
 from quadmanip.common.schema import message_types
 
@@ -126,8 +127,13 @@ def test_action_goal_feedback_result_reject_and_cancel_across_processes(relay):
 
     rejected = client.send_goal(Clock(stamp=-1.0))
     assert not rejected.accepted and "must be >= 0" in rejected.reason
-    wrong = client.send_goal(Heartbeat(stamp=0.0, service="x", seq=0, state=""))
+    with pytest.raises(TypeError, match="takes Clock"):  # the key table's row, at the client
+        client.send_goal(Heartbeat(stamp=0.0, service="x", seq=0, state=""))
+    # A client built on another table (another build of the stack): the server refuses too.
+    stray = ActionClient(bus, "relay", "count", Heartbeat)
+    wrong = stray.send_goal(Heartbeat(stamp=0.0, service="x", seq=0, state=""))
     assert not wrong.accepted and "wrong goal type" in wrong.reason
+    stray.undeclare()
 
     failed = client.send_goal(Clock(stamp=13.0))
     assert failed.accepted
@@ -227,10 +233,12 @@ def test_a_process_that_forgets_to_close_its_bus_still_exits(zenoh_router, spawn
 
 STUCK = """
 import ctypes, signal, sys
+from quadmanip.common import keys
 from quadmanip.common.service import Service, run_service
 
 class Stuck(Service):
     name = "stuck"
+    key_table = keys.TABLE.extended(services=("stuck",))
 
     def setup(self):
         # A long C call that never returns to Python, not even on a signal (like a C
