@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from quadmanip.common import messages as m
+from quadmanip.common.rotations import yaw_from_quat
 
 
 @dataclass(frozen=True)
@@ -105,8 +106,7 @@ class DemoOperator:
         odom = self._odom.get()
         if odom is not None:
             x, y, _ = odom.position
-            w, _, _, z = odom.orientation
-            yaw = math.degrees(2.0 * math.atan2(z, w))
+            yaw = math.degrees(yaw_from_quat(odom.orientation))
             out.append(f"odometry: x={x:+.2f} m y={y:+.2f} m yaw={yaw:+.0f}°")
         walked = self.walked_m()
         pos = self.true_position()

@@ -44,9 +44,9 @@ log = get_logger("sim.engine")
 
 @dataclass(frozen=True)
 class PhysicsConfig:
-    """``[physics]``: physics and control rates."""
+    """``[physics]``: the control rate (the physics timestep is the robot description's
+    ``<option timestep>``, its only source)."""
 
-    timestep: float = 0.001  # s (1 kHz)
     control_rate: float = 500.0  # Hz: LowState / LegCommand rate
     # MuJoCo's island sleeping: unactuated bodies at rest (objects, drawers) stop being
     # simulated until something awake touches them, a force is applied to them or they
@@ -71,6 +71,10 @@ class NodeConfig:
     realtime_factor: float = 1.0  # cap in realtime mode
     heartbeat_rate: float = 1.0  # Hz (wall time)
     lockstep_log_period: float = 1.0  # s of waiting between "waiting for controller" lines
+    # s (wall) between re-sends of the last LowState while lockstep waits for its answer,
+    # so a controller started late still gets the tick it must answer
+    lockstep_republish_period: float = 0.2
+    rtf_log_period: float = 5.0  # s (wall) between logs of the achieved real-time factor
     clock_rate: float = 100.0  # Hz of sim/clock (sim time); LowState stamps every tick
 
 
@@ -154,17 +158,15 @@ class SimEngine:
         self.data: mujoco.MjData = data if data is not None else world.initial_data()
         m = self.model
         pc = config.physics
-        if abs(m.opt.timestep - pc.timestep) > 1e-12:
-            log.info("timestep from config", world=m.opt.timestep, config=pc.timestep)
-            m.opt.timestep = pc.timestep
         if pc.sleep:
             m.opt.enableflags |= int(mujoco.mjtEnableBit.mjENBL_SLEEP)
         else:
             m.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_SLEEP)
-        self.substeps = round(1.0 / (pc.control_rate * pc.timestep))
-        if self.substeps < 1 or abs(self.substeps * pc.timestep * pc.control_rate - 1) > 1e-9:
+        timestep = float(m.opt.timestep)  # from the robot description's <option>
+        self.substeps = round(1.0 / (pc.control_rate * timestep))
+        if self.substeps < 1 or abs(self.substeps * timestep * pc.control_rate - 1) > 1e-9:
             raise ValueError("control period must be a whole number of physics steps")
-        self.control_dt = self.substeps * pc.timestep
+        self.control_dt = self.substeps * timestep
         self.rng = np.random.default_rng(config.seed + config.sensors.seed)
 
         self.base = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, BASE_BODY)

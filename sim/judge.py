@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 from quadmanip.common.messages import JudgeReport
+from quadmanip.common.rotations import quat_to_mat
 from quadmanip.sim.world.builder import World
 from quadmanip.sim.world.house import DepositRegion
 
@@ -50,12 +51,6 @@ class JudgeResult:
             misplaced=list(self.misplaced),
             total=self.total,
         )
-
-
-def _quat_to_mat(q: np.ndarray) -> np.ndarray:
-    m = np.zeros(9)
-    mujoco.mju_quat2Mat(m, np.asarray(q, float))
-    return m.reshape(3, 3)
 
 
 def _inside(
@@ -143,7 +138,7 @@ def judge_poses(
     obj_names, obj_pos, moving = [], [], []
     for i, raw in enumerate(names):
         if raw in region_bodies:
-            frames[raw] = (positions[i], _quat_to_mat(orientations[i]))
+            frames[raw] = (positions[i], quat_to_mat(orientations[i]))
             continue
         name = raw.removeprefix("obj/")
         if name not in place_of:

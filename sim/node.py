@@ -15,7 +15,8 @@ Modes:
 
 * ``realtime``: free-running, each tick scheduled at ``tick * dt / realtime_factor`` of
   wall time; the newest leg command is used. If the machine cannot keep up, the schedule
-  is reset instead of bursting to catch up. The achieved RTF is logged every few seconds.
+  is reset instead of bursting to catch up. The achieved RTF is logged every
+  ``rtf_log_period`` seconds.
 * ``lockstep``: after publishing LowState tick k the sim waits for a LegCommand whose
   ``tick`` is k, then advances one tick (as fast as the machine allows). With no
   controller running it waits forever: it logs "waiting for leg command" every
@@ -37,8 +38,6 @@ from quadmanip.common.service import Input, Output, Service, run_service
 from quadmanip.sim.engine import SimConfig, SimEngine, TickOutput
 
 CAMERA_TOPICS = {FRONT_CAMERA: "sim/camera/front", GRIPPER_CAMERA: "sim/camera/gripper"}
-LOCKSTEP_REPUBLISH_S = 0.2
-RTF_LOG_PERIOD_S = 5.0
 
 
 def load_world(scenario: str) -> Any:
@@ -212,7 +211,7 @@ class SimNode(Service):
                 self.stop_event.wait(target - now)
             elif now - target > 0.1:  # cannot keep up: restart the schedule, no burst
                 t_ref, tick_ref = now, eng.tick
-            if now - log_t >= RTF_LOG_PERIOD_S:
+            if now - log_t >= self.config.node.rtf_log_period:
                 self._log_rtf(now - log_t, eng.time - log_sim)
                 log_t, log_sim = now, eng.time
 
@@ -228,13 +227,14 @@ class SimNode(Service):
             out = eng.step_tick(cmd, sensors=False)
             self._publish(out)
             now = time.monotonic()
-            if now - log_t >= RTF_LOG_PERIOD_S:
+            if now - log_t >= self.config.node.rtf_log_period:
                 self._log_rtf(now - log_t, eng.time - log_sim)
                 log_t, log_sim = now, eng.time
 
     def _wait_answer(self, out: TickOutput) -> msg.LegCommand | None:
         """Block until a LegCommand answers ``out.tick`` (None when stopping)."""
         period = self.config.node.lockstep_log_period
+        republish = self.config.node.lockstep_republish_period
         start = last_pub = time.monotonic()
         last_log = start
         with self._cond:
@@ -245,7 +245,7 @@ class SimNode(Service):
                     return leg
                 self._cond.wait(0.05)
                 now = time.monotonic()
-                if now - last_pub >= LOCKSTEP_REPUBLISH_S:
+                if now - last_pub >= republish:
                     self.pub["sim/lowstate"].publish(out.lowstate)
                     last_pub = now
                 if now - last_log >= period:

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+from quadmanip.common.rotations import quat_from_yaw
 from quadmanip.sim.world.house import HouseConfig, Surface, load_house
 from quadmanip.sim.world.objects import Catalogue, load_catalogue
 
@@ -136,10 +137,6 @@ class Scenario:
         return tuple(p.name for p in self.objects)
 
 
-def _yaw_quat(yaw: float) -> tuple[float, float, float, float]:
-    return (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))
-
-
 def _in_rect(x: float, y: float, lo: tuple[float, float], hi: tuple[float, float]) -> bool:
     return lo[0] <= x <= hi[0] and lo[1] <= y <= hi[1]
 
@@ -194,7 +191,9 @@ class _Sampler:
             if not self._free(x, y, r, placed):
                 continue
             z = surf.z + obj.size[2] / 2 + DROP_GAP
-            return Placement(name, surf.name, (float(x), float(y), float(z)), _yaw_quat(yaw))
+            return Placement(
+                name, surf.name, (float(x), float(y), float(z)), tuple(quat_from_yaw(yaw).tolist())
+            )
         raise RuntimeError(f"no free place for {name!r}")
 
 
@@ -328,7 +327,8 @@ def load_scenario_file(path: str | Path, catalogue: Catalogue | None = None) -> 
                 q = q / np.linalg.norm(q)
             quat = tuple(float(v) for v in q)
         else:
-            quat = _yaw_quat(math.radians(_floats([o["yaw"]], 1, f"{where}: yaw")[0]))
+            yaw = math.radians(_floats([o["yaw"]], 1, f"{where}: yaw")[0])
+            quat = tuple(quat_from_yaw(yaw).tolist())
         pos = _floats(o.get("position"), 3, f"{where}: position")
         placements.append(Placement(name, str(o.get("surface", "floor")), pos, quat))  # type: ignore[arg-type]
     return Scenario(

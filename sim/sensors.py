@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
+from quadmanip.common.rotations import mat_to_quat, quat_from_axis_angle, quat_mul
 
 # MuJoCo cameras look along -z with y up; OpenCV's optical frame looks along +z with y down.
 _MJ_TO_CV = np.diag([1.0, -1.0, -1.0])
@@ -101,13 +102,6 @@ def _site(model: mujoco.MjModel, name: str) -> int:
     return sid
 
 
-def mat_to_quat(mat: np.ndarray) -> np.ndarray:
-    """3x3 rotation → unit quaternion [w, x, y, z]."""
-    q = np.zeros(4)
-    mujoco.mju_mat2Quat(q, np.ascontiguousarray(mat, dtype=float).reshape(9))
-    return q
-
-
 # --------------------------------------------------------------------------- IMU
 
 
@@ -163,11 +157,8 @@ class Imu:
         if cfg.orientation_noise > 0:
             # Small random rotation: rotation vector with std orientation_noise per axis.
             rv = self.rng.normal(0.0, cfg.orientation_noise, 3)
-            dq = np.zeros(4)
-            mujoco.mju_axisAngle2Quat(dq, rv / max(np.linalg.norm(rv), 1e-12), np.linalg.norm(rv))
-            out = np.zeros(4)
-            mujoco.mju_mulQuat(out, quat, dq)
-            quat = out
+            dq = quat_from_axis_angle(rv / max(np.linalg.norm(rv), 1e-12), np.linalg.norm(rv))
+            quat = quat_mul(quat, dq)
         quat = quat / np.linalg.norm(quat)
         noise = self.rng.standard_normal(6)
         gyro = gyro + self._gyro_bias + cfg.gyro_noise * noise[:3]

@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from quadmanip.common.rotations import yaw_from_quat
 from quadmanip.services.locomotion.controller import LocomotionController, load_locomotion_config
 from quadmanip.services.locomotion.convex_mpc import ConvexMpc
 
@@ -237,11 +238,6 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def _yaw(q: np.ndarray) -> float:
-    w, x, y, z = q
-    return math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-
-
 def run_zenoh(segment_s: float = SEGMENT_S) -> dict[str, Any]:
     """Router + sim (lockstep) + locomotion processes; this process commands and judges."""
     from quadmanip.common import messages as m
@@ -281,7 +277,9 @@ def run_zenoh(segment_s: float = SEGMENT_S) -> dict[str, Any]:
 
             def on_gt(msg: m.GroundTruthPoses) -> None:
                 with lock:
-                    gt.append((msg.stamp, np.array(msg.positions[0]), _yaw(msg.orientations[0])))
+                    gt.append(
+                        (msg.stamp, np.array(msg.positions[0]), yaw_from_quat(msg.orientations[0]))
+                    )
 
             def on_leg(_msg: m.LegCommand) -> None:
                 with lock:

@@ -15,6 +15,7 @@ import mujoco
 import numpy as np
 from quadmanip.common import messages as msg
 from quadmanip.common import robot_description as rd
+from quadmanip.common.rotations import yaw_from_quat
 from quadmanip.sim.engine import PhysicsConfig, SimConfig, SimEngine
 
 
@@ -86,8 +87,7 @@ class SimPlant:
 
     def true_yaw(self) -> float:
         """Base yaw (world)."""
-        w, x, y, z = self.data.qpos[3:7]
-        return float(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
+        return yaw_from_quat(self.data.qpos[3:7])
 
     def fallen(self) -> bool:
         """Trunk low or tipped over."""

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 from quadmanip.common import robot_description as rd
+from quadmanip.common.rotations import quat_from_yaw, quat_to_mat
 from quadmanip.services.manipulation.gravity import GravityCompensator
 from quadmanip.services.manipulation.primitive import (
     ArmCommand,
@@ -88,7 +89,7 @@ class PlacedObject:
 def _quat(o: PlacedObject) -> tuple[float, float, float, float]:
     if o.quat is not None:
         return o.quat
-    return (math.cos(o.yaw / 2), 0.0, 0.0, math.sin(o.yaw / 2))
+    return tuple(quat_from_yaw(o.yaw).tolist())  # type: ignore[return-value]
 
 
 @dataclass
@@ -263,9 +264,8 @@ class SimHarness:
         """Leg joints that keep the feet at their standing spots with the base at home+offset."""
         m, k = self.model, self._kin
         k.qpos[:] = self.data.qpos
-        r0 = np.zeros(9)
-        mujoco.mju_quat2Mat(r0, self._base_quat)
-        k.qpos[:3] = self._base_home + r0.reshape(3, 3) @ offset  # offsets are in the body frame
+        r0 = quat_to_mat(self._base_quat)
+        k.qpos[:3] = self._base_home + r0 @ offset  # offsets are in the body frame
         k.qpos[3:7] = self._base_quat
         k.qpos[self.act.legs.qpos] = self._leg_q
         jac = np.zeros((3, m.nv))
@@ -386,9 +386,8 @@ def _part_extent(g: object) -> tuple[np.ndarray, np.ndarray]:
         h = np.array([size[0], size[0], size[1] + (size[0] if kind == "capsule" else 0.0)])
     else:
         h = size[:3]
-    rot = np.zeros(9)
-    mujoco.mju_quat2Mat(rot, np.asarray(g.quat, dtype=float))  # type: ignore[attr-defined]
-    return np.asarray(g.pos, dtype=float), np.abs(rot.reshape(3, 3)) @ h  # type: ignore[attr-defined]
+    rot = quat_to_mat(g.quat)  # type: ignore[attr-defined]
+    return np.asarray(g.pos, dtype=float), np.abs(rot) @ h  # type: ignore[attr-defined]
 
 
 # Where a person would pinch a part-built object (object frame: centre, half extents): the

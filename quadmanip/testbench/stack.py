@@ -21,14 +21,15 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
-import mujoco
 import numpy as np
+from quadmanip.common import keys
 from quadmanip.common import messages as m
 from quadmanip.common.bus import Bus, BusConfig
+from quadmanip.common.rotations import quat_to_mat, rot_z, wrap_angle, yaw_from_quat
 from quadmanip.launcher import Launcher, free_endpoint
 from quadmanip.sim.scenarios import Scenario, save_scenario_file
 
-__all__ = ["ActionOutcome", "StackError", "StackRun", "rot", "wrap"]
+__all__ = ["ActionOutcome", "StackError", "StackRun"]
 
 SERVICES = ("sim", "locomotion", "manipulation")
 QUIET_SIM = (
@@ -42,18 +43,6 @@ SETTLE_MAX_S = 4.0  # sim seconds to wait for that
 
 class StackError(RuntimeError):
     """The stack did not come up or stopped answering (the message carries its logs)."""
-
-
-def wrap(a: float) -> float:
-    """Angle wrapped to [-pi, pi)."""
-    return (a + math.pi) % (2 * math.pi) - math.pi
-
-
-def rot(q: np.ndarray) -> np.ndarray:
-    """Rotation matrix of a (w, x, y, z) quaternion."""
-    r = np.zeros(9)
-    mujoco.mju_quat2Mat(r, np.asarray(q, dtype=float))
-    return r.reshape(3, 3)
 
 
 class ActionOutcome:
@@ -169,7 +158,7 @@ class StackRun:
         self.vel = bus.publisher("locomotion/cmd_vel")
         self.actions = {
             n: bus.action_client("manipulation", n)
-            for n in ("grasp", "place", "open_drawer", "move_to_posture")
+            for n in (a.action for a in keys.ACTIONS.values() if a.service == "manipulation")
         }
 
     def _check_alive(self) -> None:
@@ -232,14 +221,12 @@ class StackRun:
         a target 0.35 m ahead by 1-2 cm in height.
         """
         p, q = self.pose("base")
-        r = rot(q)
-        yaw = math.atan2(r[1, 0], r[0, 0])
-        c, s = math.cos(yaw), math.sin(yaw)
-        return p, np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]), yaw
+        yaw = yaw_from_quat(q)
+        return p, rot_z(yaw), yaw
 
     def tilt_deg(self) -> float:
         """The trunk's tilt from level (deg, ground truth)."""
-        r = rot(self.pose("base")[1])
+        r = quat_to_mat(self.pose("base")[1])
         return math.degrees(math.acos(float(np.clip(r[2, 2], -1.0, 1.0))))
 
     def to_base(self, p_world: np.ndarray) -> np.ndarray:
@@ -297,14 +284,14 @@ class StackRun:
                 ex = math.cos(yaw) * dx + math.sin(yaw) * dy
                 ey = -math.sin(yaw) * dx + math.cos(yaw) * dy
                 dist = math.hypot(dx, dy)
-                eyaw = wrap(gyaw - yaw)
+                eyaw = wrap_angle(gyaw - yaw)
                 if (last and dist < tol and abs(eyaw) < 0.05) or (not last and dist < 0.15):
                     break
                 self._check_alive()
                 if self.now() > t_end:
                     raise StackError(f"walk to ({gx:.2f}, {gy:.2f}) stuck at {bp[:2].round(3)}")
                 if dist > 0.35:  # face the waypoint and walk
-                    eh = wrap(math.atan2(dy, dx) - yaw)
+                    eh = wrap_angle(math.atan2(dy, dx) - yaw)
                     wz = float(np.clip(1.5 * eh, -0.8, 0.8))
                     vx = float(np.clip(0.8 * ex, 0.0, 0.4)) if abs(eh) < 0.4 else 0.0
                     vy = float(np.clip(1.0 * ey, -0.1, 0.1))

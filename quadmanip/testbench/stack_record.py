@@ -23,10 +23,11 @@ from typing import Any
 import mujoco
 import numpy as np
 from quadmanip.common import robot_description as rd
+from quadmanip.common.rotations import quat_to_mat
 from quadmanip.sim.scenarios import Scenario
 from quadmanip.sim.world import build_world
 from quadmanip.testbench.manipulation_record import contact_sheet
-from quadmanip.testbench.stack import StackRun, rot
+from quadmanip.testbench.stack import StackRun
 
 __all__ = ["StackFilm", "main"]
 
@@ -139,7 +140,7 @@ class StackFilm:
                 if k in slide:  # the drawer slides along world x (the cabinet faces west)
                     data.qpos[slide[k]] = float(np.linalg.norm((p - handle0[k])[:2]))
             mujoco.mj_forward(model, data)
-            r = rot(bq)
+            r = quat_to_mat(bq)
             yaw = float(np.degrees(np.arctan2(r[1, 0], r[0, 0])))
             cam.lookat[:] = bp + r @ np.array([0.35, 0.0, -0.12])
             cam.azimuth = yaw + self.azimuth

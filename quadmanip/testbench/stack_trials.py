@@ -27,11 +27,12 @@ from typing import Any, TextIO
 
 import numpy as np
 from quadmanip.common import messages as m
+from quadmanip.common.rotations import quat_from_yaw, quat_to_mat
 from quadmanip.sim.scenarios import Placement, Scenario
 from quadmanip.sim.world.house import DRAWER_FRONT_THICKNESS, HouseConfig, load_house
 from quadmanip.sim.world.objects import Catalogue, load_catalogue
 from quadmanip.testbench.manipulation_scenes import GraspSpec, grasp_from_poses
-from quadmanip.testbench.stack import StackError, StackRun, rot
+from quadmanip.testbench.stack import StackError, StackRun
 
 __all__ = [
     "drawer_scenario",
@@ -62,10 +63,6 @@ RETRY_REASONS = ("too_close", "self_collision")  # a step back fixes these
 
 def _rng(*key: object) -> np.random.Generator:
     return np.random.default_rng([zlib.crc32(str(k).encode()) for k in key])
-
-
-def _yaw_quat(yaw: float) -> tuple[float, float, float, float]:
-    return (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))
 
 
 def _ahead(start: tuple[float, float, float], fwd: float, lat: float) -> tuple[float, float]:
@@ -113,7 +110,7 @@ def grasp_scenario(
         name,
         surface,
         (xy[0], xy[1], z + o.size[2] / 2 + 0.001),
-        _yaw_quat(math.radians(start[2]) + rel),
+        tuple(quat_from_yaw(math.radians(start[2]) + rel).tolist()),
     )
     return Scenario(f"grasp-{name}-{where}-{seed}", seed, (pose,), robot_start=start)
 
@@ -149,7 +146,9 @@ def place_scenario(
         start = (cont.center[0], t.center[1] - t.size[1] / 2 - 0.85, 90.0)
         xy = _ahead(start, rng.uniform(*AHEAD), rng.uniform(-LATERAL, LATERAL))
     yaw = math.radians(start[2]) + rng.uniform(-math.pi / 2, math.pi / 2)
-    pose = Placement(name, "floor", (xy[0], xy[1], o.size[2] / 2 + 0.001), _yaw_quat(yaw))
+    pose = Placement(
+        name, "floor", (xy[0], xy[1], o.size[2] / 2 + 0.001), tuple(quat_from_yaw(yaw).tolist())
+    )
     return Scenario(f"place-{name}-{seed}", seed, (pose,), robot_start=start)
 
 
@@ -180,7 +179,9 @@ def _grasp(
     def spec(far: bool = False) -> GraspSpec:
         p, q = s.pose(name)
         bp, br, _ = s.base_frame()
-        return grasp_from_poses(cat, name, p, rot(q), bp, br, surface_z, approach, far_side=far)
+        return grasp_from_poses(
+            cat, name, p, quat_to_mat(q), bp, br, surface_z, approach, far_side=far
+        )
 
     def world_of(g: GraspSpec) -> np.ndarray:
         bp, br, _ = s.base_frame()
@@ -294,7 +295,7 @@ def _open_drawer(
     s.face(h0[:2], yaw, HANDLE_STANDOFF, tol=0.012)
     _, br, _ = s.base_frame()
     h0, hq = s.pose(which, s.drawers)
-    out_dir = rot(hq)[:, 0]  # the drawer's x points out of the cabinet
+    out_dir = quat_to_mat(hq)[:, 0]  # the drawer's x points out of the cabinet
     out = s.act(
         "open_drawer",
         m.DrawerGoal(
@@ -347,7 +348,7 @@ def _place_target(
         assert drawer is not None, "open the drawer first"
         h0, opened = drawer
         _, hq = s.pose("top", s.drawers)
-        x_out = rot(hq)[:, 0]
+        x_out = quat_to_mat(hq)[:, 0]
         s.face(h0[:2], math.atan2(-x_out[1], -x_out[0]), PLACE_STANDOFF, tol=0.012)
         h, _ = s.pose("top", s.drawers)
         height = _drawer_geometry(house, "top").height

@@ -8,11 +8,13 @@ from quadmanip.common.config import load_config
 from quadmanip.services.manipulation.gripper import GripperConfig
 
 __all__ = [
+    "DrawerConfig",
     "ExecutiveConfig",
     "GraspConfig",
     "ManipulationConfig",
     "MotionConfig",
     "PostureSpec",
+    "PrimitiveConfig",
     "load_manipulation_config",
 ]
 
@@ -93,6 +95,54 @@ class GraspConfig:
 
 
 @dataclass(frozen=True)
+class PrimitiveConfig:
+    """Margins and tolerances shared by the primitives (``[primitive]``)."""
+
+    # Re-aim the tool when the trunk drifted more than this from where it was asked to be
+    # (m), after letting it settle this long (s).
+    drift_tol: float = 0.004
+    drift_settle_time: float = 0.2
+    # The arm has come to rest at a trajectory end below this joint speed (rad/s).
+    arm_still_speed: float = 0.3
+    # Coarse trunk envelope in the arm_base frame: the trunk's front is this far ahead of
+    # the mount (m), and over the trunk the arm's centre line must stay this high (m; the
+    # LiDAR dome reaches 0.035 m above the mount).
+    trunk_front_x: float = 0.15
+    trunk_min_z: float = 0.045
+    # Grasp: an object must be at least this much narrower than the open gripper (m).
+    width_margin: float = 0.004
+    # Horizontal grasp: the wrist stays this far inside the arm's full stretch (m).
+    reach_margin: float = 0.005
+    # Place: the transit pose is at most this high above the release pose (m).
+    transit_clearance: float = 0.05
+
+
+@dataclass(frozen=True)
+class DrawerConfig:
+    """Drawer opening (``[drawer]``; pull distance and stand-off are in ``[grasp]``)."""
+
+    # Bar thickness the fingers open around (plus grasp.open_margin), m.
+    handle_width: float = 0.02
+    # Closest tool-centre x (arm_base frame) of a pull, below / above ``low_z``: with the
+    # wrist rolled a quarter turn the palm stands 13 cm tall, and above trunk level it would
+    # meet the LiDAR dome / trunk edge nearer.
+    min_pull_x_low: float = 0.25
+    min_pull_x_high: float = 0.32
+    low_z: float = -0.12
+    # Tool centre this far behind the bar at the grip (m). 0: the bar sits mid-pad, +-1.3 cm
+    # of tolerance either way. Under real locomotion the trunk backs off ~1 cm while the arm
+    # reaches forward (the balance controller keeps the whole-robot COM over the feet),
+    # which pushed a bar held in the pads' front half (1.2 cm) off the fingertips.
+    grip_behind: float = 0.0
+    # After the release: back off along the pull this far (m), then rise this high (m).
+    retreat: float = 0.045
+    retreat_rise: float = 0.08
+    # Tool speed of the pull (m/s) and the longest pull a goal may ask for (m).
+    pull_speed: float = 0.1
+    max_pull: float = 0.4
+
+
+@dataclass(frozen=True)
 class ExecutiveConfig:
     """Goal arbitration and policy of the manipulation executive (``[executive]``)."""
 
@@ -121,6 +171,8 @@ class ManipulationConfig:
     motion: MotionConfig = field(default_factory=MotionConfig)
     gripper: GripperConfig = field(default_factory=GripperConfig)
     grasp: GraspConfig = field(default_factory=GraspConfig)
+    primitive: PrimitiveConfig = field(default_factory=PrimitiveConfig)
+    drawer: DrawerConfig = field(default_factory=DrawerConfig)
     postures: dict[str, PostureSpec] = field(default_factory=dict)
     executive: ExecutiveConfig = field(default_factory=ExecutiveConfig)
     heartbeat_period: float = 0.5

@@ -21,7 +21,7 @@ from quadmanip.services.manipulation.arm_kinematics import (
     solve_ik,
     target_from_base_pose,
 )
-from quadmanip.services.manipulation.config import ManipulationConfig
+from quadmanip.services.manipulation.config import DrawerConfig, ManipulationConfig
 from quadmanip.services.manipulation.grasp import GraspRejected, _line, _reachable
 from quadmanip.services.manipulation.gripper import GraspMonitor, GripState
 from quadmanip.services.manipulation.primitive import (
@@ -33,22 +33,10 @@ from quadmanip.services.manipulation.primitive import (
 
 __all__ = ["DrawerPlan", "DrawerPrimitive", "plan_drawer"]
 
-HANDLE_WIDTH = 0.02  # bar thickness the fingers open around (+ margin), m
-# Closest tool-centre x (arm_base frame) of a pull. With the wrist rolled a quarter turn the
-# palm stands 13 cm tall: above trunk level it would meet the LiDAR dome / trunk edge nearer.
-MIN_PULL_X_LOW = 0.25
-MIN_PULL_X_HIGH = 0.32
-LOW_Z = -0.12
-# Tool centre this far behind the bar at the grip. 0: the bar sits mid-pad, +-1.3 cm of
-# tolerance either way. Under real locomotion the trunk backs off ~1 cm while the arm
-# reaches forward (the balance controller keeps the whole-robot COM over the feet), which
-# pushed a bar held in the pads' front half (1.2 cm) off the fingertips.
-GRIP_BEHIND = 0.0
-RETREAT = 0.045
 
-
-def _min_pull_x(z: float) -> float:
-    return MIN_PULL_X_LOW if z < LOW_Z else MIN_PULL_X_HIGH
+def _min_pull_x(dc: DrawerConfig, z: float) -> float:
+    """Closest tool-centre x of a pull at height ``z`` (arm_base frame)."""
+    return dc.min_pull_x_low if z < dc.low_z else dc.min_pull_x_high
 
 
 class DrawerPlan:
@@ -80,7 +68,7 @@ def plan_drawer(
     body: BodyPoseRequest | None = None,
 ) -> DrawerPlan:
     """Computes and checks the drawer poses; raises :class:`GraspRejected` with a reason."""
-    g = cfg.grasp
+    g, dc = cfg.grasp, cfg.drawer
     body = body or BodyPoseRequest()
     p = np.asarray(handle_base, dtype=float)
     d = np.asarray(pull_direction, dtype=float)
@@ -90,8 +78,10 @@ def plan_drawer(
         or not (np.all(np.isfinite(p)) and np.all(np.isfinite(d)))
     ):
         raise GraspRejected("invalid_goal", "handle position and pull direction must be finite")
-    if not math.isfinite(distance) or distance <= 0.0 or distance > 0.4:
-        raise GraspRejected("invalid_goal", f"pull distance {distance} outside (0, 0.4] m")
+    if not math.isfinite(distance) or distance <= 0.0 or distance > dc.max_pull:
+        raise GraspRejected(
+            "invalid_goal", f"pull distance {distance} outside (0, {dc.max_pull:g}] m"
+        )
     n = float(np.linalg.norm(d))
     if n < 1e-6:
         raise GraspRejected("invalid_goal", "pull direction is zero")
@@ -121,17 +111,18 @@ def plan_drawer(
     for pitch in (0.0, 0.3, 0.6):
         for crouch in (0.0, 0.05, g.max_crouch):
             z = target.z + crouch
-            grip = ArmTarget(target.x - GRIP_BEHIND, z, pitch, roll)
+            grip = ArmTarget(target.x - dc.grip_behind, z, pitch, roll)
             ready = ArmTarget(target.x - g.drawer_standoff, z, pitch, roll)
-            fail = _reachable(geom, _line(ready, grip, 6), ref)
+            fail = _reachable(geom, _line(ready, grip, 6), ref, cfg.primitive)
             if fail:
                 why = fail
                 continue
             arm_pull = 0.0
-            max_arm = min(pull, grip.x - _min_pull_x(z))
+            max_arm = min(pull, grip.x - _min_pull_x(dc, z))
             for cand in np.arange(max_arm, -1e-9, -0.01):
                 end = ArmTarget(grip.x - cand, z, pitch, roll)
-                if not _reachable(geom, _line(grip, end, max(3, int(cand / 0.01))), ref):
+                line = _line(grip, end, max(3, int(cand / 0.01)))
+                if not _reachable(geom, line, ref, cfg.primitive):
                     arm_pull = float(cand)
                     break
             if best is None or arm_pull > best[0] + 1e-9:
@@ -149,7 +140,7 @@ def plan_drawer(
             "unreachable", f"pull of {pull:.2f} m: arm reaches {arm_pull:.2f} m only"
         )
     z = target.z + crouch
-    grip = ArmTarget(target.x - GRIP_BEHIND, z, pitch, roll)
+    grip = ArmTarget(target.x - dc.grip_behind, z, pitch, roll)
     ready = ArmTarget(target.x - g.drawer_standoff, z, pitch, roll)
     sol = solve_ik(geom, ready, q_ref=ref, roll_symmetric=False)
     pulled = ArmTarget(grip.x - arm_pull, z, pitch, roll)
@@ -181,10 +172,10 @@ class DrawerPrimitive(Primitive):
 
     def script(self) -> Script:
         """Approach, grip, pull (arm, then body), release, back off."""
-        plan = self.plan
+        plan, dc = self.plan, self.cfg.drawer
         self.stage("drawer: moveCOM, open gripper", 0.05)
         yield []
-        yield from self.open_gripper(HANDLE_WIDTH + self.cfg.grasp.open_margin)
+        yield from self.open_gripper(dc.handle_width + self.cfg.grasp.open_margin)
         b = plan.body
         yield from self.move_body(b.x_offset, b.y_offset, b.z_offset)
         self.stage("drawer: in front of the handle", 0.2)
@@ -199,7 +190,7 @@ class DrawerPrimitive(Primitive):
             yield from self.open_gripper()
             raise PrimitiveFailed("handle_missed: fingers closed on nothing")
         self.stage("drawer: pull", 0.6)
-        yield from self.line_to(plan.pulled, speed=0.1)
+        yield from self.line_to(plan.pulled, speed=dc.pull_speed)
         if plan.body_pull > 0.0:
             yield from self.move_body(b.x_offset - plan.body_pull, b.y_offset, b.z_offset)
         if self.monitor.state is not GripState.HOLDING:
@@ -207,11 +198,11 @@ class DrawerPrimitive(Primitive):
         self.stage("drawer: release", 0.85)
         # release just wide enough to clear the bar: fully open (0.12 m) fingers reach the
         # drawer front / cabinet frame and push the drawer shut by ~4 cm when backing off
-        yield from self.open_gripper(HANDLE_WIDTH + 2 * self.cfg.grasp.open_margin)
+        yield from self.open_gripper(dc.handle_width + 2 * self.cfg.grasp.open_margin)
         # back off along the pull, then rise above the handle before the body returns
         # forward (open fingers would otherwise push the drawer shut again)
         # (the wrist may have to pitch to back off near its range limit)
-        for dx, dz in ((-RETREAT, 0.0), (0.0, 0.08)):
+        for dx, dz in ((-dc.retreat, 0.0), (0.0, dc.retreat_rise)):
             obs = self._last_obs
             assert obs is not None
             here = fk_tcp(self.geom, obs.q_arm)

@@ -41,7 +41,7 @@ from quadmanip.services.manipulation.arm_kinematics import (
     solve_ik,
     target_from_base_pose,
 )
-from quadmanip.services.manipulation.config import ManipulationConfig
+from quadmanip.services.manipulation.config import ManipulationConfig, PrimitiveConfig
 from quadmanip.services.manipulation.gripper import GraspMonitor, GripState
 from quadmanip.services.manipulation.primitive import (
     BodyPoseRequest,
@@ -76,21 +76,18 @@ class GraspPlan:
     open_gap: float
 
 
-# Coarse trunk envelope in the arm_base frame (trunk front 0.15 m ahead of the mount, LiDAR
-# dome up to 0.035 m above it): the arm's centre line must stay above MIN_Z over the trunk.
-TRUNK_FRONT_X = 0.15
-TRUNK_MIN_Z = 0.045
-
-
-def _reachable(geom: ArmGeometry, targets: list[ArmTarget], q_ref: np.ndarray) -> str:
-    """'' if every target is solvable continuing from q_ref (and clear of the trunk)."""
+def _reachable(
+    geom: ArmGeometry, targets: list[ArmTarget], q_ref: np.ndarray, margins: PrimitiveConfig
+) -> str:
+    """'' if every target is solvable continuing from q_ref (and clear of the trunk
+    envelope of ``margins``)."""
     q = q_ref
     for tg in targets:
         sol = solve_ik(geom, tg, q_ref=q, roll_symmetric=False)
         if not sol.ok:
             return f"{sol.reason.value if sol.reason else 'unreachable'}: {sol.detail}"
         q = np.asarray(sol.q)
-        if body_collision(geom, q, TRUNK_FRONT_X, TRUNK_MIN_Z):
+        if body_collision(geom, q, margins.trunk_front_x, margins.trunk_min_z):
             return f"self_collision: the arm would touch the trunk at x={tg.x:.3f}, z={tg.z:.3f}"
     return ""
 
@@ -141,7 +138,7 @@ def plan_grasp(
         raise GraspRejected("invalid_goal", "position must be 3 finite numbers, yaw finite")
     if not math.isfinite(width) or width <= 0.0:
         raise GraspRejected("invalid_goal", f"width {width} must be > 0")
-    if width + 0.004 > cfg.gripper.open_gap:
+    if width + cfg.primitive.width_margin > cfg.gripper.open_gap:
         raise GraspRejected(
             "too_wide",
             f"object width {width:.3f} m >= gripper opening {cfg.gripper.open_gap:.3f} m",
@@ -173,7 +170,7 @@ def plan_grasp(
             ready = ArmTarget(x + back_x, zg + back_z, pitch, roll)
             lift = ArmTarget(x, zg + g.lift_height, pitch, roll)
             targets = [*_line(ready, grasp, 8), *_line(grasp, lift, 8)]
-            last = _reachable(geom, targets, ref)
+            last = _reachable(geom, targets, ref, cfg.primitive)
             if not last:
                 sol = solve_ik(geom, ready, q_ref=ref, roll_symmetric=False)
                 off = BodyPoseRequest(body.x_offset, y_total, body.z_offset - float(crouch))
@@ -191,7 +188,7 @@ def plan_grasp(
     # horizontal
     r = g.lift_height
     wrist_z = z - geom.d1
-    reach = geom.d2 + geom.d7 - 0.005
+    reach = geom.d2 + geom.d7 - cfg.primitive.reach_margin
     if abs(wrist_z) >= reach:
         raise GraspRejected("unreachable", f"grasp height {z:.3f} m out of the arm's reach")
     x_lim = min(g.manipulator_x_lim, geom.d5 + math.sqrt(reach**2 - wrist_z**2))
@@ -204,7 +201,7 @@ def plan_grasp(
     ready = ArmTarget(x_reach - g.grasp_ready_x, z, 0.0, 0.0)
     grasp = ArmTarget(x_reach, z, 0.0, 0.0)
     lift = ArmTarget(x_reach, z + r, 0.0, 0.0)
-    last = _reachable(geom, [*_line(ready, grasp, 8), *_line(grasp, lift, 8)], ref)
+    last = _reachable(geom, [*_line(ready, grasp, 8), *_line(grasp, lift, 8)], ref, cfg.primitive)
     if last:
         raise GraspRejected("unreachable", f"horizontal grasp: {last}")
     sol = solve_ik(geom, ready, q_ref=ref, roll_symmetric=False)

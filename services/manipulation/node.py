@@ -18,12 +18,11 @@ the arm at once with a one-knot hold trajectory at the measured joints.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from quadmanip.common import messages as m
-from quadmanip.common import robot_description as rd
 from quadmanip.common.bus import ActionCanceled, ActionFailed, GoalHandle
+from quadmanip.common.joint_layout import ARM_SLICE
+from quadmanip.common.rotations import yaw_from_quat
 from quadmanip.common.service import Input, Output, Service, run_service
 from quadmanip.services.manipulation.config import ManipulationConfig
 from quadmanip.services.manipulation.executive import (
@@ -47,15 +46,6 @@ from quadmanip.services.manipulation.primitive import (
 )
 
 __all__ = ["ManipulationNode", "main", "to_request"]
-
-# the arm's joints in the wire order of JointState (legs first, then the arm)
-ARM = slice(len(rd.JOINTS) - len(rd.ARM_JOINTS), len(rd.JOINTS))
-
-
-def _yaw(q: np.ndarray) -> float:
-    """Heading (rad) of a [w, x, y, z] orientation."""
-    w, x, y, z = (float(v) for v in q)
-    return math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
 def _xyz(v: np.ndarray) -> tuple[float, float, float]:
@@ -128,11 +118,11 @@ class ManipulationNode(Service):
         od = self.odom_cache.get()
         max_age = self.config.executive.odom_max_age
         if od is not None and abs(float(od.stamp) - float(st.stamp)) < max_age:
-            base = (*_xyz(od.position), _yaw(od.orientation))
+            base = (*_xyz(od.position), yaw_from_quat(od.orientation))
         return Observation(
             t=float(st.stamp),
-            q_arm=np.asarray(j.q[ARM], dtype=float),
-            dq_arm=np.asarray(j.dq[ARM], dtype=float),
+            q_arm=np.asarray(j.q[ARM_SLICE], dtype=float),
+            dq_arm=np.asarray(j.dq[ARM_SLICE], dtype=float),
             gripper_gap=float(j.gripper_gap),
             gripper_effort=float(j.gripper_effort),
             base=base,

@@ -33,8 +33,6 @@ from quadmanip.services.manipulation.primitive import (
 
 __all__ = ["PlacePlan", "PlacePrimitive", "plan_place"]
 
-TRANSIT_CLEARANCE = 0.05
-
 
 class PlacePlan:
     """Checked poses of a place: body offset, transit, release and retract targets."""
@@ -62,7 +60,7 @@ def plan_place(
     ``yaw`` turns the gripper (same convention as the grasp: ``yaw = 0`` fingers along the
     body y axis) so a long object fits a narrow region; None keeps the grasp's roll.
     """
-    g = cfg.grasp
+    g, clearance = cfg.grasp, cfg.primitive.transit_clearance
     body = body or BodyPoseRequest()
     p = np.asarray(position_base, dtype=float)
     if p.shape != (3,) or not np.all(np.isfinite(p)) or not math.isfinite(hang) or hang < 0:
@@ -95,13 +93,13 @@ def plan_place(
             release = ArmTarget(target.x, z_rel, pt, roll)
             # approach and retract as high as reachable, at least 4 cm (fingertips clear)
             for up in (g.retract_height, 0.07, 0.04):
-                transit = ArmTarget(target.x, z_rel + min(up, TRANSIT_CLEARANCE), pt, roll)
+                transit = ArmTarget(target.x, z_rel + min(up, clearance), pt, roll)
                 # back out along the tool axis (up for a vertical tool, back for a level one)
                 retract = ArmTarget(
                     target.x - up * math.cos(pt), z_rel + up * math.sin(pt), pt, roll
                 )
                 lines = [*_line(transit, release, 6), *_line(release, retract, 6)]
-                why = _reachable(geom, lines, q_now)
+                why = _reachable(geom, lines, q_now, cfg.primitive)
                 if not why:
                     off = BodyPoseRequest(body.x_offset, y_total, body.z_offset + rise)
                     return PlacePlan(off, transit, release, retract)

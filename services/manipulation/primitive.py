@@ -41,13 +41,6 @@ __all__ = [
 ]
 
 
-# Re-aim the tool when the trunk drifted more than this from where it was asked to be (m),
-# after letting it settle this long (s).
-DRIFT_TOL_M = 0.004
-DRIFT_SETTLE_S = 0.2
-ARM_STILL_SPEED = 0.3  # rad/s: the arm has come to rest at a trajectory end
-
-
 @dataclass(frozen=True)
 class Observation:
     """What the manipulation service measures each tick (joint encoders and gripper)."""
@@ -216,13 +209,13 @@ class Primitive:
     def run_trajectory(self, traj: JointTrajectory) -> Script:
         """Sends a trajectory and waits until the arm reached its end (or fails: stuck)."""
         obs = yield [ArmCommand(traj)]
-        g = self.cfg.grasp
+        g, still = self.cfg.grasp, self.cfg.primitive.arm_still_speed
         q_end = traj.q_end
         while True:
             if obs.t >= traj.end_time:
                 err = float(np.max(np.abs(obs.q_arm - q_end)))
                 speed = np.abs(obs.dq_arm)
-                if err <= g.arm_tolerance and float(np.max(speed)) < ARM_STILL_SPEED:
+                if err <= g.arm_tolerance and float(np.max(speed)) < still:
                     return
                 if obs.t > traj.end_time + g.arm_timeout:
                     # say whether the arm is held off its goal or cannot come to rest
@@ -230,7 +223,7 @@ class Primitive:
                     k = int(np.argmax(np.abs(obs.q_arm - q_end)))
                     why = (
                         f"joint {j + 1} still moving at {speed[j]:.2f} rad/s"
-                        if speed[j] >= ARM_STILL_SPEED
+                        if speed[j] >= still
                         else f"joint {k + 1} held off its goal"
                     )
                     raise PrimitiveFailed(
@@ -270,14 +263,15 @@ class Primitive:
         reaches. Lateral drift cannot be fixed by this arm (it has no y); it stays."""
         from quadmanip.services.manipulation.arm_kinematics import ArmTarget, fk_tcp
 
+        pc = self.cfg.primitive
         for _ in range(tries):
-            yield from self.wait(DRIFT_SETTLE_S)
+            yield from self.wait(pc.drift_settle_time)
             d = self.body_drift()
             obs = self._last_obs
             assert obs is not None
             here = fk_tcp(self.geom, obs.q_arm)
             want = ArmTarget(target.x - d[0], target.z - d[2], here.pitch, here.roll)
-            if math.hypot(want.x - here.x, want.z - here.z) < DRIFT_TOL_M:
+            if math.hypot(want.x - here.x, want.z - here.z) < pc.drift_tol:
                 return
             self.stage(f"{label}: follow body drift {d[0]:+.3f} / {d[2]:+.3f} m", None)
             yield from self.line_to(want)

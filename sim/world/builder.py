@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 import mujoco
 import numpy as np
 from quadmanip.common import robot_description as rd
+from quadmanip.common.rotations import quat_from_yaw, quat_mul
 from quadmanip.sim.world.house import (
     DepositRegion,
     HouseConfig,
@@ -31,9 +32,7 @@ from quadmanip.sim.world.objects import Catalogue, add_object, load_catalogue
 if TYPE_CHECKING:
     from quadmanip.sim.scenarios import Scenario
 
-__all__ = ["TIMESTEP", "World", "build_world"]
-
-TIMESTEP = 0.001
+__all__ = ["World", "build_world"]
 
 
 @dataclass
@@ -84,9 +83,7 @@ class World:
                 data.qpos[m.jnt_qposadr[m.joint(jname).id]] = value
             adr = m.jnt_qposadr[m.joint(rd.FREE_JOINT).id]
             key_quat = np.array(self._robot_qpos_base[3:7])
-            yaw_q = np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
-            q = np.zeros(4)
-            mujoco.mju_mulQuat(q, yaw_q, key_quat)
+            q = quat_mul(quat_from_yaw(yaw), key_quat)
             data.qpos[adr : adr + 3] = [x, y, self._robot_qpos_base[2]]
             data.qpos[adr + 3 : adr + 7] = q
         if self.scenario is not None:
@@ -106,7 +103,7 @@ class World:
 
 
 def _copy_physics_options(dst: mujoco.MjSpec, src: mujoco.MjSpec) -> None:
-    dst.option.timestep = TIMESTEP
+    dst.option.timestep = src.option.timestep
     dst.option.integrator = src.option.integrator
     dst.option.cone = src.option.cone
     dst.option.impratio = src.option.impratio
@@ -117,12 +114,10 @@ def _place_robot(spec: mujoco.MjSpec, x: float, y: float, yaw: float, key: str |
     to the start position and heading in the house."""
     rm = rd.load_mujoco_model()
     adr = rd.free_joint_qpos_index(rm)
-    yaw_q = np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
+    yaw_q = quat_from_yaw(yaw)
 
     def turned(q: np.ndarray) -> list[float]:
-        out = np.zeros(4)
-        mujoco.mju_mulQuat(out, yaw_q, np.asarray(q, float))
-        return list(out)
+        return list(quat_mul(yaw_q, q))
 
     ref = rm.key(key).qpos if key else rm.qpos0
     base = spec.body(rd.BASE_BODY)
@@ -182,8 +177,7 @@ def build_world(
     key_name, robot_qpos = (None, {})
     if robot:
         key_name, robot_qpos = _start_keyframe(house)
-        spec = rd.robot_spec()
-        spec.option.timestep = TIMESTEP
+        spec = rd.robot_spec()  # its <option> (timestep, integrator, ...) as described
         _place_robot(spec, x, y, yaw, key_name)
     else:
         spec = mujoco.MjSpec()

@@ -15,6 +15,7 @@ from functools import lru_cache
 import mujoco
 import numpy as np
 from quadmanip.common.config import load_config
+from quadmanip.common.rotations import mat_to_quat, quat_from_yaw
 
 __all__ = [
     "Block",
@@ -257,15 +258,7 @@ def camera_quat(pos: np.ndarray, target: np.ndarray) -> np.ndarray:
     x /= np.linalg.norm(x)
     z = -f
     y = np.cross(z, x)
-    mat = np.column_stack([x, y, z])
-    q = np.zeros(4)
-    mujoco.mju_mat2Quat(q, mat.reshape(-1))
-    return q
-
-
-def _yaw_quat(yaw_deg: float) -> list[float]:
-    h = math.radians(yaw_deg) / 2.0
-    return [math.cos(h), 0.0, 0.0, math.sin(h)]
+    return mat_to_quat(np.column_stack([x, y, z]))
 
 
 def _box(
@@ -374,7 +367,9 @@ def _add_visuals(spec: mujoco.MjSpec) -> None:
 
 def _add_cabinet(spec: mujoco.MjSpec, cab: Cabinet, layout: dict) -> None:
     body = spec.worldbody.add_body(
-        name=cab.name, pos=[cab.center[0], cab.center[1], 0.0], quat=_yaw_quat(cab.yaw)
+        name=cab.name,
+        pos=[cab.center[0], cab.center[1], 0.0],
+        quat=quat_from_yaw(math.radians(cab.yaw)).tolist(),
     )
     w, d, h, p = cab.width, cab.depth, cab.height, cab.panel
     hw, hd = w / 2, d / 2

@@ -18,6 +18,7 @@ from typing import Literal
 import mujoco
 import numpy as np
 from quadmanip.common.config import load_config
+from quadmanip.common.rotations import quat_from_axis_angle, quat_from_euler_xyz, quat_mul
 
 __all__ = [
     "Catalogue",
@@ -28,7 +29,6 @@ __all__ = [
     "add_object",
     "load_catalogue",
     "object_parts",
-    "quat_from_euler_deg",
 ]
 
 PartType = Literal["box", "cylinder", "sphere", "capsule", "ellipsoid"]
@@ -145,27 +145,6 @@ def load_catalogue(name_or_path: str = "objects") -> Catalogue:
 # ----------------------------------------------------------------------------- geometry
 
 
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    out = np.zeros(4)
-    mujoco.mju_mulQuat(out, np.asarray(a, float), np.asarray(b, float))
-    return out
-
-
-def _quat_axis(axis: tuple[float, float, float], angle: float) -> np.ndarray:
-    out = np.zeros(4)
-    mujoco.mju_axisAngle2Quat(out, np.asarray(axis, float), angle)
-    return out
-
-
-def quat_from_euler_deg(euler: tuple[float, float, float]) -> np.ndarray:
-    """Quaternion [w, x, y, z] of intrinsic x-y-z Euler angles in degrees."""
-    q = np.array([1.0, 0.0, 0.0, 0.0])
-    for axis, angle in zip(((1, 0, 0), (0, 1, 0), (0, 0, 1)), euler, strict=True):
-        if angle:
-            q = _quat_mul(q, _quat_axis(axis, math.radians(angle)))
-    return q
-
-
 @dataclass(frozen=True)
 class _Geom:
     type: PartType
@@ -217,12 +196,12 @@ def _vessel_geoms(obj: ObjectSpec) -> list[_Geom]:
     length = math.hypot(r_b - r_a, z_b - z_a)
     r_mid, z_mid = 0.5 * (r_a + r_b), 0.5 * (z_a + z_b)
     half_w = r_top * math.tan(math.pi / n)
-    q_lean = _quat_axis((0, 1, 0), alpha)
+    q_lean = quat_from_axis_angle((0.0, 1.0, 0.0), alpha)
     geoms: list[_Geom] = []
     for k in range(n):
         th = 2.0 * math.pi * k / n
         pos = np.array([axis_x + r_mid * math.cos(th), r_mid * math.sin(th), z_mid])
-        quat = _quat_mul(_quat_axis((0, 0, 1), th), q_lean)
+        quat = quat_mul(quat_from_axis_angle((0.0, 0.0, 1.0), th), q_lean)
         geoms.append(_Geom("box", (0.5 * t, half_w, 0.5 * length), pos, quat, 1.0, None))
     disk_r = r_a
     geoms.append(
@@ -274,7 +253,12 @@ def object_parts(obj: ObjectSpec) -> list[_Geom]:
         return _vessel_geoms(obj)
     return [
         _Geom(
-            p.type, p.size, np.asarray(p.pos, float), quat_from_euler_deg(p.euler), p.weight, p.rgba
+            p.type,
+            p.size,
+            np.asarray(p.pos, float),
+            quat_from_euler_xyz(p.euler, degrees=True),
+            p.weight,
+            p.rgba,
         )
         for p in obj.parts
     ]

@@ -23,6 +23,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 from quadmanip.common import messages as m
+from quadmanip.common.rotations import yaw_from_quat
 
 pytestmark = pytest.mark.integration
 
@@ -33,11 +34,6 @@ SIM_ARGS = (
     "--set", "sensors.lidar.rate=0", "--set", "ground_truth.contacts_rate=0",
 )  # fmt: skip
 LOCO_ARGS = ("-m", "quadmanip.cli", "service", "locomotion")
-
-
-def yaw_of(q: np.ndarray) -> float:
-    w, x, y, z = q
-    return math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
 class Stack:
@@ -62,7 +58,9 @@ class Stack:
 
     def _on_gt(self, msg: m.GroundTruthPoses) -> None:
         with self.lock:
-            self.gt.append((msg.stamp, np.array(msg.positions[0]), yaw_of(msg.orientations[0])))
+            self.gt.append(
+                (msg.stamp, np.array(msg.positions[0]), yaw_from_quat(msg.orientations[0]))
+            )
 
     def now(self) -> float:
         c = self.clock.get()
@@ -255,7 +253,7 @@ def test_ten_metre_route_through_the_doorway(zenoh_router, spawn, bus_factory):
         while True:
             odo = stack.odom.get()
             pos = odo.position[:2] + offset
-            yaw = yaw_of(odo.orientation)
+            yaw = yaw_from_quat(odo.orientation)
             d = goal - pos
             if np.linalg.norm(d) < 0.08:
                 break

@@ -101,3 +101,67 @@ def test_actions_reject_run_and_cancel(zenoh_router, spawn, bus_factory):
     assert np.max(np.abs(np.asarray(s.joints.dq[12:16]))) < 0.05
     # and it stopped well short of the stow posture it was heading to
     assert np.max(np.abs(q_b - target["stow"])) > 0.3
+
+
+def test_two_goals_at_once_one_rejected_busy_other_completes(zenoh_router, spawn, bus_factory):
+    """A posture goal and a grasp goal sent at the same moment from two threads: the one
+    goal slot is shared by the four actions, so exactly one is accepted and runs to its
+    end, the other is rejected "busy"; afterwards the slot is free again."""
+    import threading
+
+    ep = zenoh_router
+    sim = spawn(*SIM_ARGS, endpoint=ep, env={"MUJOCO_GL": "egl"})
+    loco = spawn(*LOCO_ARGS, endpoint=ep)
+    manip = spawn(*MANIP_ARGS, endpoint=ep)
+    procs = (sim, loco, manip)
+    bus = bus_factory(ep)
+    state = bus.latest("sim/lowstate")
+    clients = {
+        "posture": bus.action_client("manipulation", "move_to_posture"),
+        "grasp": bus.action_client("manipulation", "grasp"),
+    }
+    _wait(lambda: state.get() is not None and state.get().stamp > 1.0, 90.0, "no sim", procs)
+    _wait(lambda: "manipulation" in bus.alive_services(0.5), 60.0, "no manipulation", procs)
+    # both servers answer this session before the race (rejected goals change nothing)
+    bad_posture = m.PostureGoal(stamp=0.0, posture="dance")
+    assert "unknown_posture" in clients["posture"].send_goal(bad_posture, timeout=10.0).reason
+    far = m.GraspGoal(stamp=0.0, position=np.array([2.0, 0.0, -0.2]), approach="vertical")
+    assert "unreachable" in clients["grasp"].send_goal(far, timeout=10.0).reason
+
+    goals = {
+        "posture": m.PostureGoal(stamp=0.0, posture="floor_search"),
+        # reachable from above 36 cm ahead on the floor (nothing may be there to pick up)
+        "grasp": m.GraspGoal(
+            stamp=0.0, position=np.array([0.36, 0.0, -0.275]), approach="vertical"
+        ),
+    }
+    gate = threading.Barrier(2)
+    handles: dict[str, object] = {}
+
+    def send(name: str) -> None:
+        gate.wait()
+        handles[name] = clients[name].send_goal(goals[name], timeout=10.0)
+
+    threads = [threading.Thread(target=send, args=(n,)) for n in goals]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(30.0)
+    accepted = [n for n, h in handles.items() if h.accepted]
+    rejected = [h for h in handles.values() if not h.accepted]
+    assert len(accepted) == 1 and len(rejected) == 1, {n: h.reason for n, h in handles.items()}
+    assert rejected[0].reason.startswith("busy"), rejected[0].reason
+    winner = accepted[0]
+    res = handles[winner].result(timeout=120.0)
+    assert res is not None, f"the accepted {winner} goal never ended"
+    if winner == "posture":
+        assert res.status == "succeeded", res
+    else:  # a real grasp attempt: it succeeds or fails on its own terms, never "busy"
+        assert res.status in ("succeeded", "failed"), res
+        assert not res.reason.startswith(("busy", "not_accepted")), res
+    # the slot is free again: the next goal is accepted and completes
+    nxt = m.PostureGoal(stamp=0.0, posture="stow" if winner == "posture" else "floor_search")
+    h = clients["posture"].send_goal(nxt, timeout=10.0)
+    assert h.accepted, h.reason
+    res = h.result(timeout=120.0)
+    assert res is not None and res.status == "succeeded", res

@@ -24,11 +24,12 @@ import sys
 import numpy as np
 import pytest
 from quadmanip.common import messages as m
+from quadmanip.common.rotations import quat_to_mat
 from quadmanip.sim.scenarios import get_scenario
 from quadmanip.sim.world.house import load_house
 from quadmanip.sim.world.objects import load_catalogue
 from quadmanip.testbench.manipulation_scenes import TABLE_HEIGHT, grasp_from_poses
-from quadmanip.testbench.stack import ActionOutcome, StackRun, rot
+from quadmanip.testbench.stack import ActionOutcome, StackRun
 
 pytestmark = pytest.mark.integration
 
@@ -48,7 +49,7 @@ class Stack(StackRun):
         """Grasp ``name`` with a pose from ground truth; returns its resting height."""
         p, q = self.pose(name)
         bp, br, _ = self.base_frame()
-        gs = grasp_from_poses(load_catalogue(), name, p, rot(q), bp, br, surface_z)
+        gs = grasp_from_poses(load_catalogue(), name, p, quat_to_mat(q), bp, br, surface_z)
         goal = m.GraspGoal(
             stamp=self.now(),
             position=gs.position_base,

@@ -204,7 +204,9 @@ def test_two_goals_at_once_one_accepted_one_busy(monkeypatch):
         gate = threading.Barrier(2)
         verdicts: dict[str, object] = {}
 
-        def send(name: str, request: object) -> None:
+        def send(
+            name: str, request: object, gate: threading.Barrier = gate, verdicts: dict = verdicts
+        ) -> None:
             gate.wait()
             verdicts[name] = ex.accept(request, obs, token=name)  # type: ignore[arg-type]
 

@@ -142,7 +142,9 @@ def arm_trajectory(draw: st.DrawFn) -> m.ArmTrajectory:
         kp=draw(array_strategy(_spec(m.ArmTrajectory, "kp"))),
         kd=draw(array_strategy(_spec(m.ArmTrajectory, "kd"))),
         # per knot, or left out (then zeros, as from a 1.0 sender)
-        tau_ff=draw(array_strategy(_spec(m.ArmTrajectory, "tau_ff"), {0: draw(st.sampled_from([n, 0]))})),
+        tau_ff=draw(
+            array_strategy(_spec(m.ArmTrajectory, "tau_ff"), {0: draw(st.sampled_from([n, 0]))})
+        ),
     )
 
 

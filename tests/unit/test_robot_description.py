@@ -103,6 +103,31 @@ def test_names_follow_conventions(model) -> None:
         assert model.joint(j).type[0] == mujoco.mjtJoint.mjJNT_SLIDE
 
 
+def test_joint_layout_is_the_description_s(model) -> None:
+    """common/joint_layout.py (names, counts, slices) matches the MJCF: its hinge joints and
+    its actuators, in order; the robot description re-exports the same objects."""
+    from quadmanip.common import joint_layout as jl
+    from quadmanip.common import messages as msg
+
+    hinges = tuple(
+        model.joint(j).name
+        for j in range(model.njnt)
+        if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE
+    )
+    assert hinges == jl.JOINTS  # depth-first order of the MJCF = the wire order
+    assert tuple(model.actuator(a).name for a in range(model.nu)) == jl.ACTUATORS
+    assert (jl.N_LEG_JOINTS, jl.N_ARM_JOINTS, jl.N_JOINTS) == (12, 4, 16)
+    assert jl.JOINTS[jl.LEG_SLICE] == jl.LEG_JOINTS and jl.JOINTS[jl.ARM_SLICE] == jl.ARM_JOINTS
+    assert [jl.LEG_JOINTS[jl.leg_slice(i)][0] for i in range(jl.N_LEGS)] == [
+        f"{leg}_abad" for leg in jl.LEG_NAMES
+    ]
+    for name in ("JOINTS", "LEG_JOINTS", "ARM_JOINTS", "ACTUATORS", "LEG_SLICE", "ARM_SLICE"):
+        assert getattr(rd, name) is getattr(jl, name)
+    assert msg.example(msg.JointState).q.shape == (jl.N_JOINTS,)
+    assert msg.example(msg.LegCommand).q_des.shape == (jl.N_LEG_JOINTS,)
+    assert msg.example(msg.ArmTrajectory).kp.shape == (jl.N_ARM_JOINTS,)
+
+
 # --- Table 1 ----------------------------------------------------------------------------
 def test_trunk_and_legs_match_table1(model) -> None:
     geo = rd.leg_geometry(model)
