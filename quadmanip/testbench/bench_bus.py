@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 from quadmanip.common import keys
 from quadmanip.common.bus import Bus, BusConfig
+from quadmanip.common.joint_layout import N_LEG_JOINTS, N_LEGS
 from quadmanip.common.messages import (
     Heartbeat,
     Imu,
@@ -98,15 +99,15 @@ def progress(text: str) -> None:
 
 def leg_command(i: int) -> LegCommand:
     """A realistic joint command (standing pose gains), ``tick`` = round-trip id."""
-    q = np.tile([0.0, 0.8, -1.6], 4)
+    q = np.tile([0.0, 0.8, -1.6], N_LEGS)
     return LegCommand(
         stamp=i * 0.002,
         tick=i,
         q_des=q,
-        dq_des=np.zeros(12),
-        kp=np.full(12, 40.0),
-        kd=np.full(12, 1.0),
-        tau_ff=np.zeros(12),
+        dq_des=np.zeros(N_LEG_JOINTS),
+        kp=np.full(N_LEG_JOINTS, 40.0),
+        kd=np.full(N_LEG_JOINTS, 1.0),
+        tau_ff=np.zeros(N_LEG_JOINTS),
     )
 
 

@@ -65,8 +65,9 @@ def bench_physics(sim_seconds: float = 5.0) -> dict[str, Any]:
         lidar=False,
         ground_truth=False,
     )
-    q0 = rd.home_joint_positions()[:12]
-    kp, kd, zero = np.full(12, 150.0), np.full(12, 3.0), np.zeros(12)
+    n = rd.N_LEG_JOINTS
+    q0 = rd.home_joint_positions()[rd.LEG_SLICE]
+    kp, kd, zero = np.full(n, 150.0), np.full(n, 3.0), np.zeros(n)
     act = eng.actuators
     d = eng.data
     steps = 0
@@ -238,15 +239,16 @@ def responder_main(argv: list[str]) -> int:
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     hold: list[np.ndarray] = []
     if args.home:
-        hold.append(rd.home_joint_positions()[:12])
-    kp, kd, zero = np.full(12, args.kp), np.full(12, args.kd), np.zeros(12)
+        hold.append(rd.home_joint_positions()[rd.LEG_SLICE])
+    n_leg = rd.N_LEG_JOINTS
+    kp, kd, zero = np.full(n_leg, args.kp), np.full(n_leg, args.kd), np.zeros(n_leg)
     with Bus(apply_env(load_bus_config())) as bus:
         pub = bus.publisher("sim/leg_command")
         n = [0]
 
         def on_state(s: msg.LowState) -> None:
             if not hold:
-                hold.append(np.array(s.joints.q[:12]))
+                hold.append(np.array(s.joints.q[rd.LEG_SLICE]))
             pub.publish(
                 msg.LegCommand(
                     stamp=s.stamp,

@@ -57,12 +57,7 @@ __all__ = [
     "table_boxes",
 ]
 
-LEG_JOINTS = tuple(
-    f"{leg}_{j}" for leg in ("FL", "FR", "RL", "RR") for j in ("abad", "hip", "knee")
-)
-ARM_JOINTS = ("arm_j1", "arm_j2", "arm_j3", "arm_j4")
-GRIPPER_JOINTS = ("gripper_left", "gripper_right")
-FEET = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
+FEET = rd.FOOT_SITES
 
 
 @dataclass(frozen=True)
@@ -150,7 +145,9 @@ class SimHarness:
             d.qpos[adr : adr + 3] = o.pos
             d.qpos[adr + 3 : adr + 7] = _quat(o)
         mujoco.mj_forward(m, d)
-        self.act = ActuatorLayer(m, ActuatorConfig(), LEG_JOINTS, ARM_JOINTS, GRIPPER_JOINTS)
+        self.act = ActuatorLayer(
+            m, ActuatorConfig(), rd.LEG_JOINTS, rd.ARM_JOINTS, rd.GRIPPER_JOINTS
+        )
         self.substeps = max(1, round(1.0 / (control_rate * m.opt.timestep)))
         self.base_id = m.body("base").id
         # leg stand-in
@@ -296,12 +293,12 @@ class SimHarness:
         robot = np.flatnonzero(m.body_rootid == m.body_rootid[self.base_id])
         mass = float(m.body_mass[robot].sum())
         f = np.array([0.0, 0.0, mass * 9.81 / 4.0])
-        tau = np.zeros(12)
+        tau = np.zeros(rd.N_LEG_JOINTS)
         jac = np.zeros((3, m.nv))
         for i, name in enumerate(FEET):
             mujoco.mj_jacSite(m, k, jac, None, m.site(name).id)
-            cols = self.act.legs.dof[3 * i : 3 * i + 3]
-            tau[3 * i : 3 * i + 3] = -jac[:, cols].T @ f
+            cols = self.act.legs.dof[rd.leg_slice(i)]
+            tau[rd.leg_slice(i)] = -jac[:, cols].T @ f
         return tau + k.qfrc_bias[self.act.legs.dof]
 
     def _send_legs(self) -> None:
@@ -309,9 +306,9 @@ class SimHarness:
         self.act.set_leg_command(
             now,
             self._leg_q,
-            np.zeros(12),
-            np.full(12, self.leg_kp),
-            np.full(12, self.leg_kd),
+            np.zeros(rd.N_LEG_JOINTS),
+            np.full(rd.N_LEG_JOINTS, self.leg_kp),
+            np.full(rd.N_LEG_JOINTS, self.leg_kd),
             self._tau_ff,
         )
 
