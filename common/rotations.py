@@ -193,6 +193,8 @@ def wrap_angle(a: float) -> float: ...
 def wrap_angle(a: np.ndarray) -> np.ndarray: ...
 def wrap_angle(a: float | np.ndarray) -> float | np.ndarray:
     """Angle(s) wrapped to [-pi, pi); a Python number gives a float, an array an array."""
-    if isinstance(a, int | float):
-        return (a + math.pi) % _TWO_PI - math.pi
-    return (np.asarray(a, dtype=float) + math.pi) % _TWO_PI - math.pi
+    if hasattr(a, "__len__"):  # an array or a sequence (the cheapest test for the IK's floats)
+        return (np.asarray(a, dtype=float) + math.pi) % _TWO_PI - math.pi
+    # one number: plain math (the arm's IK wraps several angles per solution)
+    w = math.fmod(a + math.pi, _TWO_PI)
+    return (w + _TWO_PI if w < 0.0 else w) - math.pi
