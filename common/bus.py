@@ -44,7 +44,7 @@ process exit anyway.
 
 Actions (goal → accepted or rejected → feedback → result, cancelable) are in
 :mod:`quadmanip.common.actions`; :meth:`Bus.action_server` and :meth:`Bus.action_client`
-create them, and this module re-exports their names.
+create them.
 """
 
 from __future__ import annotations
@@ -751,19 +751,3 @@ class Bus:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-_ACTION_NAMES = frozenset(
-    {"ActionCanceled", "ActionClient", "ActionFailed", "ActionServer", "ClientGoalHandle"}
-    | {"GoalHandle"}
-)
-
-
-def __getattr__(name: str) -> Any:
-    """The action names, re-exported from :mod:`quadmanip.common.actions` on first use
-    (that module builds on this one, so it cannot be imported at the top)."""
-    if name in _ACTION_NAMES:
-        from quadmanip.common import actions
-
-        return getattr(actions, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -257,37 +257,31 @@ def heartbeat_row(service: str) -> Topic:
     return row(service, "heartbeat", m.Heartbeat, "event", "out", "1 Hz service heartbeat")
 
 
-def _t(
-    service: str, suffix: str, msg_type: type[Message], kind: str, direction: str, doc: str
-) -> Topic:
-    return row(service, suffix, msg_type, kind, direction, doc)
-
-
 _TABLE: tuple[Topic, ...] = (
     # sim (or a hardware adapter speaking the same keys): outputs
-    _t("sim", "clock", m.Clock, "sensor", "out", "robot time"),
-    _t("sim", "lowstate", m.LowState, "control", "out", "500 Hz joint state + IMU"),
-    _t("sim", "camera/front", m.RgbdImage, "sensor", "out", "front RGB-D camera"),
-    _t("sim", "camera/gripper", m.RgbdImage, "sensor", "out", "gripper RGB-D camera"),
-    _t("sim", "scan", m.LaserScan, "sensor", "out", "2D LiDAR"),
+    row("sim", "clock", m.Clock, "sensor", "out", "robot time"),
+    row("sim", "lowstate", m.LowState, "control", "out", "500 Hz joint state + IMU"),
+    row("sim", "camera/front", m.RgbdImage, "sensor", "out", "front RGB-D camera"),
+    row("sim", "camera/gripper", m.RgbdImage, "sensor", "out", "gripper RGB-D camera"),
+    row("sim", "scan", m.LaserScan, "sensor", "out", "2D LiDAR"),
     # sim inputs (the actuator layer)
-    _t("sim", "leg_command", m.LegCommand, "control", "in", "leg PD + torque (locomotion)"),
-    _t("sim", "arm_trajectory", m.ArmTrajectory, "control", "in", "arm trajectory (manip.)"),
-    _t("sim", "gripper_command", m.GripperCommand, "control", "in", "gripper gap (manip.)"),
-    _t("sim", "test/disturbance", m.Disturbance, "control", "in", "TEST-ONLY external wrench"),
+    row("sim", "leg_command", m.LegCommand, "control", "in", "leg PD + torque (locomotion)"),
+    row("sim", "arm_trajectory", m.ArmTrajectory, "control", "in", "arm trajectory (manip.)"),
+    row("sim", "gripper_command", m.GripperCommand, "control", "in", "gripper gap (manip.)"),
+    row("sim", "test/disturbance", m.Disturbance, "control", "in", "TEST-ONLY external wrench"),
     # ground truth: judge, tests and visualisation only
-    _t("sim", "gt/base", m.GroundTruthPoses, "gt", "out", "true base pose (name 'base')"),
-    _t("sim", "gt/objects", m.GroundTruthPoses, "gt", "out", "true object poses"),
-    _t("sim", "gt/drawers", m.GroundTruthPoses, "gt", "out", "true drawer-handle poses"),
-    _t("sim", "gt/contacts", m.GroundTruthContacts, "gt", "out", "true contacts"),
-    _t("sim", "gt/judge", m.JudgeReport, "gt", "out", "judge verdict"),
+    row("sim", "gt/base", m.GroundTruthPoses, "gt", "out", "true base pose (name 'base')"),
+    row("sim", "gt/objects", m.GroundTruthPoses, "gt", "out", "true object poses"),
+    row("sim", "gt/drawers", m.GroundTruthPoses, "gt", "out", "true drawer-handle poses"),
+    row("sim", "gt/contacts", m.GroundTruthContacts, "gt", "out", "true contacts"),
+    row("sim", "gt/judge", m.JudgeReport, "gt", "out", "judge verdict"),
     # locomotion
-    _t("locomotion", "cmd_vel", m.BodyVelocityCommand, "control", "in", "body velocity"),
-    _t("locomotion", "body_pose", m.BodyPoseCommand, "control", "in", "body pose offsets"),
-    _t("locomotion", "mode", m.LocomotionMode, "control", "in", "stand/sit/damp/walk"),
-    _t("locomotion", "payload", m.Payload, "control", "in", "mass in the gripper (manip.)"),
-    _t("locomotion", "odometry", m.Odometry, "sensor", "out", "estimated base state (odom)"),
-    _t("locomotion", "debug", m.LocomotionDebug, "sensor", "out", "gait, forces, MPC"),
+    row("locomotion", "cmd_vel", m.BodyVelocityCommand, "control", "in", "body velocity"),
+    row("locomotion", "body_pose", m.BodyPoseCommand, "control", "in", "body pose offsets"),
+    row("locomotion", "mode", m.LocomotionMode, "control", "in", "stand/sit/damp/walk"),
+    row("locomotion", "payload", m.Payload, "control", "in", "mass in the gripper (manip.)"),
+    row("locomotion", "odometry", m.Odometry, "sensor", "out", "estimated base state (odom)"),
+    row("locomotion", "debug", m.LocomotionDebug, "sensor", "out", "gait, forces, MPC"),
 )
 
 

@@ -62,11 +62,10 @@ from collections.abc import Callable, Sequence
 from typing import Any, ClassVar, Literal
 
 from quadmanip.common import keys
+from quadmanip.common.actions import ActionServer, GoalHandle
 from quadmanip.common.bus import (
-    ActionServer,
     Bus,
     BusConfig,
-    GoalHandle,
     LatestCache,
     TypedPublisher,
     TypedSubscriber,

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 from quadmanip.common import messages as m
-from quadmanip.common.bus import ActionCanceled, ActionFailed, GoalHandle
+from quadmanip.common.actions import ActionCanceled, ActionFailed, GoalHandle
 from quadmanip.common.joint_layout import ARM_SLICE
 from quadmanip.common.rotations import yaw_from_quat
 from quadmanip.common.service import Input, Output, Service, run_service

@@ -15,14 +15,8 @@ import time
 
 import pytest
 from quadmanip.common import keys
-from quadmanip.common.bus import (
-    ActionCanceled,
-    Bus,
-    BusConfig,
-    GoalHandle,
-    safe_close,
-    zenoh_config,
-)
+from quadmanip.common.actions import ActionCanceled, GoalHandle
+from quadmanip.common.bus import Bus, BusConfig, safe_close, zenoh_config
 from quadmanip.common.log import _LineFormatter, get_logger
 from quadmanip.common.messages import Clock, Heartbeat, LegCommand
 from quadmanip.common.schema import encode

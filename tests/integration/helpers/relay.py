@@ -19,7 +19,7 @@ import time
 
 import qm_examples
 import qm_keys
-from quadmanip.common.bus import ActionFailed, GoalHandle
+from quadmanip.common.actions import ActionFailed, GoalHandle
 from quadmanip.common.messages import Clock
 from quadmanip.common.schema import message_types
 from quadmanip.common.service import Input, Output, Service, run_service
