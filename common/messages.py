@@ -53,6 +53,7 @@ __all__ = [
     "Heartbeat",
     "Imu",
     "JointState",
+    "JUDGE_LOCATIONS",
     "JudgeReport",
     "LaserScan",
     "LegCommand",
@@ -525,20 +526,68 @@ class GroundTruthContacts(Message):
             raise MessageError("GroundTruthContacts: body1, body2, positions, forces differ")
 
 
-@message("qm.JudgeReport", (1, 0))
+#: Where the judge finds an object (``JudgeReport.locations``): in its category's place
+#: (placed, the only success); in another category's place (a failure); touching the robot;
+#: on the floor; on a table, furniture or a place's rim; elsewhere (in the air, settling,
+#: on another object).
+JUDGE_LOCATIONS = ("in_place", "wrong_place", "held", "floor", "furniture", "elsewhere")
+
+
+@message("qm.JudgeReport", (2, 0))
 class JudgeReport(Message):
-    """The sim judge's verdict from ground truth: which objects are in their deposit
-    region, which are not, and the total number of objects."""
+    """The sim judge's verdict from ground truth (``sim/judge.py`` says what "placed"
+    means): the placed objects, the others, and per object (parallel lists) where it is,
+    why it is not placed (``notes``, empty when placed), its position (world, m) and how
+    long it has been at rest (s). ``valid`` is False when the honesty guard tripped during
+    the trial (``violations`` say what); such a trial scores nothing.
+
+    2.0: "placed" became strict (inside the inner volume, supported by the place, not
+    touching the robot, at rest for a while); per-object locations; ``valid``.
+    """
 
     stamp: float
     trial_time: float
     in_place: list[str] = string_list()
     misplaced: list[str] = string_list()
     total: int = 0
+    objects: list[str] = string_list(default_empty=True)
+    locations: list[str] = string_list(default_empty=True)
+    notes: list[str] = string_list(default_empty=True)
+    positions: np.ndarray = array("f8", (None, 3), max_elements=3 * 4096, default=np.zeros((0, 3)))
+    rest_s: np.ndarray = array("f8", (None,), nonneg=True, max_elements=4096, default=np.zeros(0))
+    valid: bool = True
+    violations: list[str] = string_list(default_empty=True)
 
     def _check(self) -> None:
         if self.total < len(self.in_place) + len(self.misplaced) or self.total < 0:
             raise MessageError("JudgeReport.total is less than in_place + misplaced")
+        n = len(self.objects)
+        sizes = (
+            len(self.locations),
+            len(self.notes),
+            self.positions.shape[0],
+            self.rest_s.shape[0],
+        )
+        if any(k != n for k in sizes):
+            raise MessageError(
+                f"JudgeReport: {n} objects but locations/notes/positions/rest_s have {sizes}"
+            )
+        bad = sorted(set(self.locations) - set(JUDGE_LOCATIONS))
+        if bad:
+            raise MessageError(f"JudgeReport.locations: {bad} not in {JUDGE_LOCATIONS}")
+        if n and sorted(self.in_place) != sorted(
+            o for o, loc in zip(self.objects, self.locations, strict=True) if loc == "in_place"
+        ):
+            raise MessageError("JudgeReport.in_place disagrees with the per-object locations")
+        if self.violations and self.valid:
+            raise MessageError("JudgeReport: a trial with honesty violations is not valid")
+
+    def location_of(self, name: str) -> str | None:
+        """Where object ``name`` is (None if the report does not list it)."""
+        try:
+            return self.locations[self.objects.index(name)]
+        except ValueError:
+            return None
 
 
 # --------------------------------------------------------------------------- examples
@@ -585,5 +634,14 @@ def example(cls: type[Message], **overrides: object) -> Message:
 
 _EXAMPLE_FIXUPS: dict[type[Message], dict[str, object]] = {
     DrawerGoal: {"pull_direction": [-1.0, 0.0, 0.0]},
-    JudgeReport: {"total": 2},
+    JudgeReport: {
+        "total": 2,
+        "in_place": ["a"],
+        "misplaced": ["b"],
+        "objects": ["a", "b"],
+        "locations": ["in_place", "floor"],
+        "notes": ["", "belongs in tray"],
+        "positions": np.zeros((2, 3)),
+        "rest_s": np.zeros(2),
+    },
 }

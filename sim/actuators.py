@@ -18,7 +18,20 @@ the robot (docs/architecture.md, "Honest simulation").
   then). Before any trajectory the arm servos hold the pose they started in.
 * Gripper: stiff position control on the finger gap, with the finger force clamped to
   the commanded ``max_force`` (a real parallel gripper's current limit): fingers blocked
-  by an object squeeze it with ``max_force`` per finger.
+  by an object squeeze it with ``max_force`` per finger. Like a real gripper's motion
+  controller, the loop does not jump to a new gap: its setpoint moves toward the
+  commanded gap at the description's rated gap speed (``velocity_limits``, 0.15 m/s), so
+  the fingers close at that speed and touch objects gently. The setpoint never leads the
+  measured gap by more than it takes to saturate the force (anti-windup): a blocked
+  finger squeezes at ``max_force``, and one whose object is pulled away, or that is told
+  to reverse, follows the ramp instead of leaping at the full force. The finger force
+  also obeys the torque-speed envelope below (the rated gap speed is the drive's no-load
+  speed), so the motor cannot push the fingers past it even in contact transients (an
+  object slipping out of a squeeze); the drive's reflected inertia (the finger joints'
+  armature in the description) keeps one step's speed change small enough for that
+  explicit limit to hold within 1 %. Contacts can still drag the fingers a little faster
+  for a few milliseconds (pads rubbing on the floor as the arm moves: up to 7 % in the
+  grasp benchmark), as they would backdrive a real drive.
 * Every torque is clamped to the actuator's limit from the model (``ctrlrange`` times
   gear) and to a linear torque-speed envelope: above a corner speed the torque available
   in the direction of motion falls linearly to zero at the joint's no-load speed, while
@@ -61,12 +74,13 @@ class ActuatorConfig:
     arm_hold_kp: float = 60.0
     arm_hold_kd: float = 2.0
     # Gripper position loop on the finger gap (N/m, N s/m) and default force limit (N).
-    # Stiff, like a real parallel gripper's drive: blocked by an object >= 1.5 mm thick,
-    # the fingers squeeze at the commanded max_force (the current limit), not at kp times
-    # a few mm. 20000 N/m with 40 N s/m is well damped at the 1 ms step for the
-    # description's fingers (0.06 kg each with armature); 50000 N/m limit-cycles.
+    # Stiff, like a real parallel gripper's drive: blocked by an object, the fingers
+    # squeeze at the commanded max_force (the current limit), not at kp times a few mm.
+    # The gap's inertia is the description's fingers with the drive's reflected rotor
+    # inertia (armature 0.5 kg per finger: 0.27 kg on the gap): 20000 N/m with 150 N s/m
+    # is damped at zeta ~0.9 and far from the 1 ms step's stability limit.
     gripper_kp: float = 20000.0
-    gripper_kd: float = 40.0
+    gripper_kd: float = 150.0
     gripper_default_force: float = 20.0
 
 
@@ -300,8 +314,12 @@ class ActuatorLayer:
         # Arm: hold the pose found at the first step.
         self._arm_segments: list[ArmSegment] = []
         self._arm_hold: np.ndarray | None = None
-        # Gripper: hold the opening found at the first step.
+        # Gripper: hold the opening found at the first step. ``_grip_gap`` is the commanded
+        # gap, ``_grip_ref`` the ramped setpoint of the position loop, ``_grip_t`` the sim
+        # time it was last advanced.
         self._grip_gap: float | None = None
+        self._grip_ref: float | None = None
+        self._grip_t = 0.0
         self._grip_force = float(config.gripper_default_force)
         self.tau = np.zeros(model.nu)
         # Legs + arm as one 16-vector (wire order) for the per-step loop.
@@ -320,6 +338,10 @@ class ActuatorLayer:
         self._grip_act = int(self.gripper.act[0])
         self._grip_gear = float(self.gripper.gear[0])
         self._grip_tau_max = float(self.gripper.tau_max[0])
+        # Rated gap speed (m/s) from the description; inf (no numeric) = no ramp.
+        speed = float(self.gripper.max_speed[0])
+        self._grip_speed = speed if np.isfinite(speed) and speed > 0 else np.inf
+        self._grip_corner = config.torque_speed_corner * self._grip_speed
 
     # ----------------------------------------------------------------- commands
     def _reject(self, what: str, reason: str) -> bool:
@@ -421,6 +443,16 @@ class ActuatorLayer:
         return True
 
     # ------------------------------------------------------------------ gripper
+    @property
+    def gripper_speed(self) -> float:
+        """Rated finger-gap speed (m/s) the setpoint ramps at (inf: no ramp)."""
+        return self._grip_speed
+
+    @property
+    def gripper_setpoint(self) -> float | None:
+        """The position loop's current (ramped) gap setpoint, None before the first step."""
+        return self._grip_ref
+
     def gripper_gap(self, data: mujoco.MjData) -> float:
         """Finger gap (m): the sum of the finger slide positions (0 = closed)."""
         return float(np.sum(data.qpos[self.gripper.qpos]))
@@ -487,9 +519,37 @@ class ActuatorLayer:
         gap_dot = float(data.qvel[self.gripper.dof].sum())
         if self._grip_gap is None:
             self._grip_gap = gap
-        f = cfg.gripper_kp * (self._grip_gap - gap) - cfg.gripper_kd * gap_dot
         fmax = min(self._grip_force, self._grip_tau_max)
+        ref = self._grip_ref
+        if ref is None or now < self._grip_t:  # first step, or the sim was reset
+            ref, self._grip_t = gap, now
+        # The setpoint ramps toward the commanded gap at the rated speed...
+        if np.isfinite(self._grip_speed):
+            step = self._grip_speed * (now - self._grip_t)
+            ref += min(max(self._grip_gap - ref, -step), step)
+        else:
+            ref = self._grip_gap
+        self._grip_t = now
+        # ...and leads the fingers by at most what saturates the force (anti-windup): at a
+        # standstill the full force (blocked fingers squeeze at fmax), at the rated speed
+        # only the tracking lag (1.1 mm). Freed fingers follow the ramp; fingers dragged
+        # faster than that (pads rubbing on the floor) overtake the setpoint and are braked.
+        v_ratio = abs(gap_dot) / self._grip_speed
+        lead = (cfg.gripper_kd * self._grip_speed + fmax * max(0.0, 1.0 - v_ratio)) / cfg.gripper_kp
+        ref = min(max(ref, gap - lead), gap + lead)
+        self._grip_ref = ref
+        f = cfg.gripper_kp * (ref - gap) - cfg.gripper_kd * gap_dot
         f = min(max(f, -fmax), fmax)
+        # The drive's torque-speed line: force in the direction of motion falls to zero at
+        # the no-load (rated) speed, so the motor cannot push the fingers past it whatever
+        # contacts do (an object slipping out of the grip). Explicit, so it relies on the
+        # drive's reflected inertia (the finger joints' armature) to keep the speed change
+        # of one step small.
+        if f * gap_dot > 0.0 and abs(gap_dot) > self._grip_corner:
+            lim = self._grip_tau_max * max(
+                0.0, (self._grip_speed - abs(gap_dot)) / (self._grip_speed - self._grip_corner)
+            )
+            f = min(max(f, -lim), lim)
         # Write ctrl (ctrl = tau / gear).
         data.ctrl[self._j_act] = tau / self._j_gear
         data.ctrl[self._grip_act] = f / self._grip_gear

@@ -11,14 +11,24 @@ does; the node decides how fast ticks happen (realtime or lockstep).
 Physics is advanced with ``mj_step1``/``mj_step2`` so that the actuator layer computes
 its torques from the state at the start of each step, with kinematics and sensors
 current for that state (as a motor driver samples its encoder, then sets current).
-Each step the engine also checks the honesty invariant: ``xfrc_applied`` holds exactly
-what the test-only disturbance channel wrote (zero when it is idle); anything else is
-counted in ``external_force_violations`` and logged.
+
+The honesty invariant (docs/architecture.md, "Honest simulation"): after load, the robot and
+the objects move only by actuator torques, contacts and gravity. The engine's
+:class:`~quadmanip.sim.honesty.HonestyGuard` (``self.honesty``) checks the model once at
+construction (no mocap body, active equality, gravity compensation, foreign actuator or
+tendon on the robot or an object; the finger coupling excepted) and, before every physics
+step, that ``xfrc_applied`` holds exactly what the test-only disturbance channel wrote,
+``qfrc_applied`` is zero and no such equality was switched on. Each new violation is
+logged once at ERROR; :meth:`SimEngine.honesty_violations` lists them all for the judge.
+
+Objects never sleep (MuJoCo island sleeping freezes a tree whose speed stays under
+``sleep_tolerance`` for 10 steps, which would hold an object creeping off a rim in place;
+see :func:`configure_sleep`).
 """
 
 from __future__ import annotations
 
-import logging
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -37,6 +47,8 @@ from quadmanip.common.robot_description import (
 )
 from quadmanip.sim.actuators import ActuatorConfig, ActuatorLayer, LegMode
 from quadmanip.sim.disturbance import DisturbanceChannel
+from quadmanip.sim.honesty import HonestyGuard
+from quadmanip.sim.judge import Judge, JudgeConfig
 from quadmanip.sim.sensors import Imu, Lidar, RgbdRenderer, SensorsConfig
 
 log = get_logger("sim.engine")
@@ -48,9 +60,9 @@ class PhysicsConfig:
     ``<option timestep>``, its only source)."""
 
     control_rate: float = 500.0  # Hz: LowState / LegCommand rate
-    # MuJoCo's island sleeping: unactuated bodies at rest (objects, drawers) stop being
-    # simulated until something awake touches them, a force is applied to them or they
-    # move; the robot (actuated) never sleeps. Same physics, far fewer contacts to solve.
+    # MuJoCo's island sleeping: unactuated bodies at rest (drawers) stop being simulated
+    # until something awake touches them, a force is applied to them or they move. The
+    # robot (actuated) and the objects (see configure_sleep) never sleep.
     sleep: bool = True
 
 
@@ -89,6 +101,7 @@ class SimConfig:
     actuators: ActuatorConfig = ActuatorConfig()
     sensors: SensorsConfig = SensorsConfig()
     ground_truth: GroundTruthConfig = GroundTruthConfig()
+    judge: JudgeConfig = JudgeConfig()
     node: NodeConfig = NodeConfig()
 
 
@@ -138,6 +151,28 @@ def _robot_bodies(model: mujoco.MjModel, base: int) -> np.ndarray:
     return np.flatnonzero(model.body_rootid == model.body_rootid[base])
 
 
+def configure_sleep(model: mujoco.MjModel, enabled: bool, never: Iterable[int] = ()) -> None:
+    """Switch MuJoCo's island sleeping on or off and keep the trees of the ``never`` bodies
+    (the objects) always awake.
+
+    A sleeping tree is frozen until something awake touches it, and a tree falls asleep
+    after 10 steps under ``sleep_tolerance`` (1 mm/s): an object released at rest with its
+    centre of mass just past a rim falls asleep before it tips and stays balanced there for
+    ever (tests/unit/test_honesty.py: a cracker box 1 mm past a table edge has dropped 5 cm
+    after 0.69 s without sleeping, and is still on the edge after 3 s with it). So objects
+    never sleep; passive house parts (drawers) still may, but an island holding an object
+    cannot.
+    """
+    if enabled:
+        model.opt.enableflags |= int(mujoco.mjtEnableBit.mjENBL_SLEEP)
+    else:
+        model.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_SLEEP)
+    for b in never:
+        tree = int(model.body_treeid[b])
+        if tree >= 0:
+            model.tree_sleep_policy[tree] = int(mujoco.mjtSleepPolicy.mjSLEEP_NEVER)
+
+
 class SimEngine:
     """Physics + actuator layer + sensors + ground truth for one scenario (no Zenoh)."""
 
@@ -158,10 +193,6 @@ class SimEngine:
         self.data: mujoco.MjData = data if data is not None else world.initial_data()
         m = self.model
         pc = config.physics
-        if pc.sleep:
-            m.opt.enableflags |= int(mujoco.mjtEnableBit.mjENBL_SLEEP)
-        else:
-            m.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_SLEEP)
         timestep = float(m.opt.timestep)  # from the robot description's <option>
         self.substeps = round(1.0 / (pc.control_rate * timestep))
         if self.substeps < 1 or abs(self.substeps * timestep * pc.control_rate - 1) > 1e-9:
@@ -206,14 +237,26 @@ class SimEngine:
         self.object_names: list[str] = list(getattr(world, "object_names", ()) or ())
         body_ids = getattr(world, "object_body_ids", {}) or {}
         self._object_bodies = np.array([body_ids[n] for n in self.object_names], dtype=int)
-        self._judge_on = ground_truth and hasattr(world, "regions")
+        # The judge tracks rest and contacts every tick (history: "at rest for 1 s").
+        self.judge: Judge | None = (
+            Judge(world, config.judge) if ground_truth and hasattr(world, "regions") else None
+        )
+        self._judge_track_every = max(_every(pc.control_rate, config.judge.track_rate, "judge"), 1)
         handles = getattr(world, "drawer_handles", {}) or {}
         self._drawer_names = list(handles)
         self._drawer_bodies = np.array([m.body(b).id for b in handles.values()], dtype=int)
 
         self.tick = 0
         self.start_time = float(self.data.time)
-        self.external_force_violations = 0
+        configure_sleep(m, pc.sleep, never=self._object_bodies)
+        self.honesty = HonestyGuard(
+            m,
+            self.data,
+            self.robot_bodies,
+            self._object_bodies,
+            self.disturbance,
+            time_origin=self.start_time,
+        )
         self._contacts: msg.GroundTruthContacts | None = None
         mujoco.mj_forward(m, self.data)
         self._contacts = self._capture_contacts(stamp=0.0)
@@ -262,15 +305,13 @@ class SimEngine:
 
     # ------------------------------------------------------------------ physics
     def physics_step(self, capture_contacts: bool = False) -> None:
-        """One physics step (1 ms): disturbance, actuator torques, integrate.
+        """One physics step (1 ms): honesty check, disturbance, actuator torques, integrate.
 
         ``capture_contacts`` records the contacts and their forces right after the solver
         ran (before the next collision pass replaces them): the step's ground truth.
         """
         m, d = self.model, self.data
-        if not self.disturbance.untouched_since_last_apply(d):
-            self.external_force_violations += 1
-            log.throttled("xfrc", 1.0, logging.ERROR, "external force outside the test channel")
+        self.honesty.check(d)  # what this step is about to integrate; logs new violations
         self.disturbance.apply(d)
         self.actuators.apply(d)
         mujoco.mj_step2(m, d)
@@ -294,6 +335,8 @@ class SimEngine:
         for i in range(self.substeps):
             self.physics_step(capture_contacts=capture and i == self.substeps - 1)
         self.tick += 1
+        if self.judge is not None and self.tick % self._judge_track_every == 0:
+            self.judge.track(self.data)
         return self.observe(sensors=sensors)
 
     # ------------------------------------------------------------- observation
@@ -411,12 +454,11 @@ class SimEngine:
 
     def judge_report(self) -> msg.JudgeReport | None:
         """The judge's verdict from ground truth (None for a world without regions)."""
-        if not self._judge_on:
+        if self.judge is None:
             return None
-        from quadmanip.sim.judge import judge_data
-
-        r = judge_data(self.world, self.data, trial_start=self.start_time).to_message()
-        return r.replace(stamp=self.time)
+        return self.judge.report(
+            self.data, trial_start=self.start_time, violations=self.honesty_violations()
+        )
 
     def observe(self, sensors: bool = True) -> TickOutput:
         """The state of this tick plus every sensor/ground-truth output due at it."""
@@ -449,31 +491,10 @@ class SimEngine:
 
     # ------------------------------------------------------------------ honesty
     def honesty_violations(self) -> list[str]:
-        """Static honesty checks of the model plus the runtime external-force counter.
-
-        Robot and objects must not be mocap bodies nor be held by weld/connect equality
-        constraints, and nothing but the disturbance channel may apply external forces.
-        """
-        m = self.model
-        watched = set(self.robot_bodies.tolist()) | set(self._object_bodies.tolist())
-        out = []
-        for b in watched:
-            if m.body_mocapid[b] >= 0:
-                out.append(f"mocap body {m.body(b).name!r}")
-        for e in range(m.neq):
-            if m.eq_type[e] not in (mujoco.mjtEq.mjEQ_WELD, mujoco.mjtEq.mjEQ_CONNECT):
-                continue
-            if m.eq_objtype[e] == mujoco.mjtObj.mjOBJ_SITE:
-                bodies = {int(m.site_bodyid[m.eq_obj1id[e]]), int(m.site_bodyid[m.eq_obj2id[e]])}
-            else:
-                bodies = {int(m.eq_obj1id[e]), int(m.eq_obj2id[e])}
-            if bodies & watched and self.data.eq_active[e]:
-                out.append(f"equality {e} ({m.eq(e).name!r}) holds {sorted(bodies & watched)}")
-        if self.external_force_violations:
-            out.append(
-                f"external force outside the disturbance channel x{self.external_force_violations}"
-            )
-        return out
+        """Everything the honesty guard found, structural and at run time, deduplicated
+        with counts and first times (empty for an honest run): the judge's evidence that
+        only physics moved the robot and the objects."""
+        return self.honesty.violations()
 
     def close(self) -> None:
         if self.renderer is not None:

@@ -38,7 +38,7 @@ from quadmanip.services.manipulation.primitive import (
     Primitive,
 )
 from quadmanip.sim.actuators import ActuatorConfig, ActuatorLayer
-from quadmanip.sim.world.objects import add_object, load_catalogue
+from quadmanip.sim.world.objects import add_object, load_catalogue, pad_contacts
 
 __all__ = [
     "grasp_from_poses",
@@ -191,9 +191,16 @@ class SimHarness:
                 group=0,
             )
         contact = getattr(self.catalogue, "contact", None)
+        pads = pad_contacts(spec, self.catalogue)
         for o in objects:
             add_object(
-                spec.worldbody, o.name, self.catalogue.objects[o.name], o.pos, _quat(o), contact
+                spec.worldbody,
+                o.name,
+                self.catalogue.objects[o.name],
+                o.pos,
+                _quat(o),
+                contact,
+                pads,
             )
         return spec.compile()
 
@@ -388,10 +395,12 @@ def _part_extent(g: object) -> tuple[np.ndarray, np.ndarray]:
 
 
 # Where a person would pinch a part-built object (object frame: centre, half extents): the
-# clamp's bar between its jaws (its bounding-box centre is next to a jaw). The spoon's thin
-# handle was tried and missed: the fingers closed on nothing in every trial.
+# clamp's bar between its jaws (its bounding-box centre is next to a jaw); the spoon's bowl
+# across its rim (the bowl is a thin shell of many pieces, the largest being the handle,
+# whose thin strip was tried and missed: the fingers closed on nothing in every trial).
 GRASP_HINTS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
     "clamp": ((-0.027, 0.0545, 0.0), (0.02, 0.008, 0.010)),
+    "spoon": ((0.065, 0.0, 0.0), (0.0325, 0.019, 0.007)),
 }
 
 

@@ -245,8 +245,9 @@ class StackRun:
         return low
 
     def in_place(self, name: str, within_s: float = 4.0) -> bool:
-        """The sim judge's verdict on ``name`` (inside its category's place and at rest):
-        True at the first report within ``within_s`` of sim time that says so."""
+        """The sim judge's verdict on ``name`` (placed as a referee means it, see
+        ``quadmanip.sim.judge``): True at the first report within ``within_s`` of sim
+        time that says so. :meth:`judged` then tells where the judge last saw it."""
         t_end = self.now() + within_s
         seen = -1.0
         while True:
@@ -258,6 +259,14 @@ class StackRun:
                 if seen >= t_end:
                     return False
             self.wait_sim(self.now() + 0.05)
+
+    def judged(self, name: str) -> tuple[str | None, str]:
+        """Where the judge's latest report has ``name`` and why it is not placed."""
+        r = self.judge.get()
+        if r is None or name not in r.objects:
+            return None, ""
+        i = r.objects.index(name)
+        return r.locations[i], r.notes[i]
 
     # ------------------------------------------------------------------ navigation stand-in
     def stop(self) -> None:

@@ -414,9 +414,10 @@ def run_place_trial(
             target, yaw = _place_target(s, house, cat, name, place, drawer)
             step = "place"
             out, res["steps"] = s.place_within_reach(target, yaw)
-            # placed: the judge sees it in the region and the place released it (a box
-            # still held over the tray after a rejected place is inside it, not placed)
+            # placed: the judge counts it (inside, supported, released, at rest) and the
+            # place action says it succeeded
             ok = s.in_place(name) and out.ok
+            res["judge_location"], res["judge_note"] = s.judged(name)
             res["payload_after_kg"] = s.payload_kg()
             end, _ = s.pose(name)
             res.update(

@@ -8,7 +8,7 @@ to ~0. So after a close command, once the gap has settled:
 
 * ``HOLDING``: gap above ``empty_gap`` and effort at least ``hold_min_effort``. An absolute
   threshold, not a fraction of the force limit: a position loop closing on a thin object
-  (a 3 mm cup wall) stalls before its force saturates;
+  (a 1.2 mm cup wall) stalls before its force saturates;
 * ``EMPTY``: gap at or below ``empty_gap`` (fingers met), or no effort;
 
 and while carrying, ``LOST`` when the gap closes to ``empty_gap`` (the fingers met: the
@@ -40,6 +40,8 @@ class GripperConfig:
     settle_speed: float = 0.005
     settle_time: float = 0.15
     close_timeout: float = 2.0
+    # An open command has arrived once the gap is this close to the commanded one (m).
+    open_tolerance: float = 0.001
     hold_min_effort: float = 2.0
     lost_min_effort: float = 1.0
     slip_gap: float = 0.006

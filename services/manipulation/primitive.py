@@ -324,12 +324,26 @@ class Primitive:
         yield [new]
         yield from self.wait(self.cfg.grasp.body_settle_time)
 
-    def open_gripper(self, gap: float | None = None, settle: float = 0.4) -> Script:
-        """Opens to ``gap`` (default: fully) and waits for the fingers to move."""
+    def open_gripper(self, gap: float | None = None, settle: float = 0.1) -> Script:
+        """Opens to ``gap`` (default: fully), waits until the fingers got there (they move
+        at the gripper's rated speed, 0.15 m/s of gap: 0.8 s from closed to fully open) or
+        stopped against something, then ``settle`` seconds more."""
         assert self._last_obs is not None
-        full, force = self.monitor.command_open(self._last_obs.t)
+        cfg = self.cfg.gripper
+        t0 = self._last_obs.t
+        full, force = self.monitor.command_open(t0)
         g = full if gap is None else float(min(max(gap, 0.0), full))
-        yield [GripperCmd(g, force)]
+        obs = yield [GripperCmd(g, force)]
+        last, still_since = (obs.t, obs.gripper_gap), None
+        while abs(obs.gripper_gap - g) > cfg.open_tolerance and obs.t - t0 < cfg.close_timeout:
+            obs = yield []
+            dt = obs.t - last[0]
+            if dt > 0:
+                moving = abs(obs.gripper_gap - last[1]) / dt >= cfg.settle_speed
+                still_since = None if moving else (still_since or obs.t)
+                last = (obs.t, obs.gripper_gap)
+            if still_since is not None and obs.t - still_since >= cfg.settle_time:
+                break  # blocked short of the gap (e.g. by the drawer bar)
         yield from self.wait(settle)
 
     def close_gripper(self, max_force: float | None = None) -> Script:

@@ -501,15 +501,51 @@ def log_gt_contacts(
     )
 
 
+#: Colours of the judge's locations (``JUDGE_LOCATIONS``): green placed, red wrong place,
+#: blue held, grey on the floor or furniture, amber elsewhere.
+_LOCATION_COLORS = {
+    "in_place": (40, 200, 80),
+    "wrong_place": (230, 40, 40),
+    "held": (40, 140, 255),
+    "floor": (150, 150, 150),
+    "furniture": (120, 110, 100),
+    "elsewhere": (255, 200, 0),
+}
+
+
 def log_judge(rec: RecordingLike, msg: m.JudgeReport) -> None:
-    """The judge's verdict as a text line and an ``in_place`` count series."""
+    """The judge's verdict: a text line (each object not placed with where it is and why),
+    an ``in_place`` count series, and (2.0 reports) each object as a labelled point
+    coloured by its location under ``world/gt/judge``."""
+    where = {
+        o: (loc, note) for o, loc, note in zip(msg.objects, msg.locations, msg.notes, strict=True)
+    }
+    missing = [
+        f"{o} ({where[o][0]}: {where[o][1]})" if o in where and where[o][1] else o
+        for o in msg.misplaced
+    ]
     text = (
         f"judge t={msg.trial_time:.1f}s: {len(msg.in_place)}/{msg.total} in place"
         f" | in place: {', '.join(msg.in_place) or '-'}"
-        f" | misplaced: {', '.join(msg.misplaced) or '-'}"
+        f" | misplaced: {', '.join(missing) or '-'}"
     )
-    log_text(rec, f"{LOG}/judge", msg.stamp, text, "INFO")
+    level = "INFO"
+    if not msg.valid:
+        text = f"INVALID TRIAL ({'; '.join(msg.violations)}) | {text}"
+        level = "ERROR"
+    log_text(rec, f"{LOG}/judge", msg.stamp, text, level)
     rec.log(f"{PLOTS}/judge/in_place", rr.Scalars(float(len(msg.in_place))))
+    if msg.objects:
+        rec.log(
+            f"{GT}/judge",
+            rr.Points3D(
+                msg.positions.astype(np.float32),
+                radii=0.03,
+                colors=np.array([_LOCATION_COLORS[loc] for loc in msg.locations], np.uint8),
+                labels=[f"{o}: {loc}" for o, loc in zip(msg.objects, msg.locations, strict=True)],
+                show_labels=False,
+            ),
+        )
 
 
 # --------------------------------------------------------------------------- heartbeats

@@ -27,7 +27,7 @@ from quadmanip.sim.world.house import (
     build_house,
     load_house,
 )
-from quadmanip.sim.world.objects import Catalogue, add_object, load_catalogue
+from quadmanip.sim.world.objects import Catalogue, add_object, load_catalogue, pad_contacts
 
 if TYPE_CHECKING:
     from quadmanip.sim.scenarios import Scenario
@@ -187,6 +187,7 @@ def build_world(
 
     names: list[str] = []
     if scenario is not None:
+        pads = pad_contacts(spec, catalogue)  # pad x object pairs (None without the robot)
         for p in scenario.objects:
             add_object(
                 spec.worldbody,
@@ -195,6 +196,7 @@ def build_world(
                 p.position,
                 p.quat,
                 catalogue.contact,
+                pads,
             )
             names.append(p.name)
 

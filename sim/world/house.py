@@ -89,7 +89,6 @@ class Container:
     wall: float
     bottom: float
     rgba: tuple[float, float, float, float]
-    region_above: float = 0.15
 
 
 @dataclass(frozen=True)
@@ -126,7 +125,6 @@ class Cabinet:
     handle_bar: float
     handle_offset: float
     drawers: tuple[Drawer, ...] = ()
-    region_above: float = 0.03
 
 
 @dataclass(frozen=True)
@@ -200,19 +198,37 @@ def load_house(name_or_path: str = "house") -> HouseConfig:
 
 @dataclass(frozen=True)
 class DepositRegion:
-    """A judge region: an axis-aligned box in the frame of ``body`` ("world" for fixed ones),
-    so a drawer's region moves with the drawer."""
+    """A deposit place's inner volume, for the judge: an axis-aligned box in the frame of
+    ``body`` ("world" for fixed ones, so a drawer's region moves with the drawer) from the
+    inner bottom up to the rim. ``support_body`` is the body whose geoms hold objects that
+    lie in the place (the container, the drawer)."""
 
     place: str
     name: str
     body: str
     center: tuple[float, float, float]
     half_size: tuple[float, float, float]
+    support_body: str
 
-    def contains_local(self, p_local: np.ndarray) -> bool:
-        """Whether a point given in the region's body frame lies inside the box."""
-        d = np.abs(np.asarray(p_local, float) - np.asarray(self.center))
-        return bool(np.all(d <= np.asarray(self.half_size)))
+    @property
+    def bottom(self) -> float:
+        """Height of the inner bottom in the region's body frame."""
+        return self.center[2] - self.half_size[2]
+
+    @property
+    def rim(self) -> float:
+        """Height of the rim in the region's body frame."""
+        return self.center[2] + self.half_size[2]
+
+    def contains_local(self, p_local: np.ndarray, top: float | None = None) -> bool:
+        """Whether a point given in the region's body frame lies inside the inner volume;
+        ``top`` (body frame) replaces the rim as the upper bound."""
+        p = np.asarray(p_local, float)
+        c, h = self.center, self.half_size
+        hi = self.rim if top is None else top
+        return bool(
+            abs(p[0] - c[0]) <= h[0] and abs(p[1] - c[1]) <= h[1] and self.bottom <= p[2] <= hi
+        )
 
 
 @dataclass(frozen=True)
@@ -485,18 +501,17 @@ def _add_drawer(cab_body: mujoco.MjsBody, cab: Cabinet, dr: Drawer, layout: dict
     layout["drawer_joints"][dr.name] = f"{name}/slide"
     layout["drawer_bodies"][dr.name] = name
     layout["drawer_handles"][dr.name] = f"{name}/handle"
-    inner_top = height  # objects may stick out above the sides up to the front's height
+    # The whole box behind the front, whatever the drawer's opening; its rim is the front's
+    # top (inside the cabinet an object may stand above the sides up to there).
+    inner_top = height
     layout["regions"].append(
         DepositRegion(
             place="drawer",
             name=f"drawer_{dr.name}",
             body=name,
-            center=(-(depth + t_front) / 2, 0.0, (t + inner_top + cab.region_above) / 2),
-            half_size=(
-                (depth - t_front) / 2 - t,
-                width / 2 - t,
-                (inner_top + cab.region_above - t) / 2,
-            ),
+            center=(-(depth + t_front) / 2, 0.0, (t + inner_top) / 2),
+            half_size=((depth - t_front) / 2 - t, width / 2 - t, (inner_top - t) / 2),
+            support_body=name,
         )
     )
 
@@ -577,7 +592,7 @@ def build_house(spec: mujoco.MjSpec, house: HouseConfig) -> HouseLayout:
         z0 = 0.0 if c.on == "floor" else house.table(c.on).height
         body = wb.add_body(name=f"place/{c.name}", pos=[c.center[0], c.center[1], z0])
         _open_box(body, f"place/{c.name}", c.size, c.wall, c.bottom, c.rgba)
-        inner_h = c.size[2] - c.bottom + c.region_above
+        inner_h = c.size[2] - c.bottom  # inner bottom to rim
         layout["regions"].append(
             DepositRegion(
                 place=c.name,
@@ -585,6 +600,7 @@ def build_house(spec: mujoco.MjSpec, house: HouseConfig) -> HouseLayout:
                 body="world",
                 center=(c.center[0], c.center[1], z0 + c.bottom + inner_h / 2),
                 half_size=(c.size[0] / 2 - c.wall, c.size[1] / 2 - c.wall, inner_h / 2),
+                support_body=f"place/{c.name}",
             )
         )
     _add_cabinet(spec, house.cabinet, layout)

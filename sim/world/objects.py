@@ -4,8 +4,15 @@ The 18 objects of the paper's Section 7.1 are YCB objects; the simulator cannot 
 scanned meshes (MuJoCo collides the convex hull of a mesh, which would close a bowl's
 opening), so each object is composed of convex primitives: a box, a cylinder, a sphere, a
 recipe of parts, or a *vessel* (bowl, mug, cup) made of a ring of wall slabs plus a bottom
-disk, so its rim and opening are real. Sizes and masses are the YCB numbers; the mass is
-split over the parts by volume times a relative density.
+disk, so its rim and opening are real. A part may be a *dish* (a spoon's bowl): a thin
+elliptical shell of a floor plate and a ring of leaning wall slabs. Sizes and masses are the
+YCB numbers; the mass is split over the parts by volume times a relative density.
+
+Each object (and optionally each part) is made of a catalogue *material*; the robot's
+silicone finger pads touch it with that material's pad friction (``[pad_friction]``),
+through explicit MuJoCo contact pairs (:class:`PadContacts`): the friction of a pad
+contact is a property of the pair, not of either surface, and the object keeps its own
+friction against everything else (floor, tables, containers, other objects).
 """
 
 from __future__ import annotations
@@ -18,20 +25,37 @@ from typing import Literal
 import mujoco
 import numpy as np
 from quadmanip.common.config import load_config
-from quadmanip.common.rotations import quat_from_axis_angle, quat_from_euler_xyz, quat_mul
+from quadmanip.common.rotations import (
+    quat_from_axis_angle,
+    quat_from_euler_xyz,
+    quat_mul,
+    quat_to_mat,
+)
 
 __all__ = [
     "Catalogue",
     "Contact",
     "ObjectSpec",
+    "PadContacts",
+    "PadFriction",
     "Part",
     "Vessel",
     "add_object",
     "load_catalogue",
     "object_parts",
+    "pad_contacts",
 ]
 
-PartType = Literal["box", "cylinder", "sphere", "capsule", "ellipsoid"]
+PartType = Literal["box", "cylinder", "sphere", "capsule", "ellipsoid", "dish"]
+
+# Collision bits (MuJoCo: two geoms collide if contype1 & conaffinity2 or contype2 &
+# conaffinity1). Ordinary geoms (house, robot) keep the default 1/1. The robot's finger pads
+# are contype 1 / conaffinity 2 (configs/robot/quadmanip_dog.xml): they touch every ordinary
+# geom. Objects paired with the pads are contype 5 / conaffinity 4: they touch ordinary
+# geoms (bit 1 of their contype) and each other (bit 4), but not the pads dynamically:
+# those contacts come from the explicit pairs, with the pad-vs-material friction.
+OBJECT_CONTYPE = 5
+OBJECT_CONAFFINITY = 4
 
 _GEOM_TYPE = {
     "box": mujoco.mjtGeom.mjGEOM_BOX,
@@ -44,7 +68,14 @@ _GEOM_TYPE = {
 
 @dataclass(frozen=True)
 class Part:
-    """One convex primitive of an object, in the object's body frame (MuJoCo size rules)."""
+    """One convex primitive of an object, in the object's body frame (MuJoCo size rules).
+
+    ``dish``: a thin open elliptical shell (a spoon's bowl), opening up; ``size`` = rim
+    half-axes x, y and the full height; ``thickness`` of its floor and walls; its walls
+    lean in by ``inset`` (m) from the rim to the floor plate; ``segments`` wall slabs (a
+    multiple of 4). ``material`` overrides the object's (a steel shaft in a plastic
+    handle).
+    """
 
     type: PartType
     size: tuple[float, ...]
@@ -52,6 +83,19 @@ class Part:
     euler: tuple[float, float, float] = (0.0, 0.0, 0.0)
     weight: float = 1.0
     rgba: tuple[float, float, float, float] | None = None
+    material: str | None = None
+    thickness: float | None = None
+    inset: float | None = None
+    segments: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.type == "dish":
+            if self.thickness is None or self.inset is None or self.segments is None:
+                raise ValueError("a dish part needs thickness, inset and segments")
+            if self.segments < 4 or self.segments % 4:
+                raise ValueError("a dish needs a multiple of 4 wall segments")
+            if not 0.0 <= self.inset < min(self.size[:2]):
+                raise ValueError("a dish's inset must be smaller than its rim")
 
 
 @dataclass(frozen=True)
@@ -78,6 +122,8 @@ class ObjectSpec:
     aliases: tuple[str, ...] = ()
     friction: tuple[float, float, float] = (0.9, 0.005, 0.0001)
     condim: int = 4
+    # What its surface is made of (a key of the catalogue's pad_friction table).
+    material: str = ""
     parts: tuple[Part, ...] = ()
     vessel: Vessel | None = None
 
@@ -104,17 +150,32 @@ class Contact:
 
 
 @dataclass(frozen=True)
+class PadFriction:
+    """MuJoCo friction of the finger pads against one material: sliding coefficient,
+    torsional (m: the moment about the contact normal is at most torsional x normal force)
+    and rolling (m)."""
+
+    sliding: float
+    torsional: float
+    rolling: float
+
+
+@dataclass(frozen=True)
 class Catalogue:
     """All objects by name and the category → deposit place table (paper Section 7.2)."""
 
     categories: dict[str, str]
     objects: dict[str, ObjectSpec] = field(default_factory=dict)
     contact: Contact = field(default_factory=Contact)
+    pad_friction: dict[str, PadFriction] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         for name, obj in self.objects.items():
             if obj.category not in self.categories:
                 raise ValueError(f"object {name!r}: unknown category {obj.category!r}")
+            for m in (obj.material, *(p.material for p in obj.parts if p.material)):
+                if m not in self.pad_friction:
+                    raise ValueError(f"object {name!r}: material {m!r} not in pad_friction")
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -153,6 +214,7 @@ class _Geom:
     quat: np.ndarray
     weight: float
     rgba: tuple[float, float, float, float] | None
+    material: str | None = None  # None: the object's
 
 
 def _volume(kind: str, size: tuple[float, ...]) -> float:
@@ -239,9 +301,65 @@ def _vessel_geoms(obj: ObjectSpec) -> list[_Geom]:
     return geoms
 
 
+def _dish_geoms(p: Part) -> list[_Geom]:
+    """A dish part as boxes: a floor plate and ``segments`` leaning wall slabs.
+
+    The slabs' outer faces start at the polygon of tangents to the rim ellipse (the affine
+    image of a regular polygon around the unit circle, with faces at 0 and 90 degrees, so
+    the rim reaches exactly the half-axes) and lean inward by ``inset`` down to the floor
+    plate, whose half-sizes are the rim's half-axes less the inset. Each slab's lowest
+    outer corner lies in the floor plate's mid-plane and its highest corner at the dish's
+    top, so the part spans exactly ``size[2]``. Every piece is a box: box-plane and box-box
+    collisions are analytic, robust for thin plates.
+    """
+    assert p.thickness is not None and p.inset is not None and p.segments is not None
+    a, b, height = p.size
+    t, inset, n = p.thickness, p.inset, p.segments
+    z_lo, z_hi = -0.5 * height, 0.5 * height
+    rot = quat_from_euler_xyz(p.euler, degrees=True)
+    rmat = quat_to_mat(rot)
+    centre = np.asarray(p.pos, float)
+
+    def piece(size: tuple[float, ...], pos: np.ndarray, quat: np.ndarray) -> _Geom:
+        return _Geom(
+            "box", size, centre + rmat @ pos, quat_mul(rot, quat), p.weight, p.rgba, p.material
+        )
+
+    geoms = [piece((a - inset, b - inset, 0.5 * t), np.array([0.0, 0.0, z_lo + 0.5 * t]), _IDENT)]
+    half_tan = math.tan(math.pi / n)
+    alpha = math.atan2(inset, height)
+    for _ in range(8):  # fixed point: the corners depend on the lean angle
+        sa = math.sin(alpha)
+        z_b = z_hi - 0.5 * t * sa  # mid-surface at the top and at the bottom
+        z_a = z_lo + 0.5 * t + 0.5 * t * sa
+        alpha = math.atan2(inset, z_b - z_a)
+    length = math.hypot(inset, z_b - z_a)
+    z_mid = 0.5 * (z_a + z_b)
+    q_lean = quat_from_axis_angle((0.0, 1.0, 0.0), alpha)
+    for k in range(n):
+        th = 2.0 * math.pi * k / n
+        c, s = math.cos(th), math.sin(th)
+        normal = np.array([c / a, s / b])
+        d_top = 1.0 / float(np.linalg.norm(normal))  # the rim tangent's distance from centre
+        normal *= d_top  # unit outward normal of the tangent at (a c, b s)
+        tangent_pt = np.array([a * c, b * s])  # the middle of that polygon edge
+        half_w = half_tan * math.hypot(a * s, b * c)  # half the edge's length
+        # slab centre: from the tangent point, in along the normal to the mid-surface's
+        # middle (outer face at the tangent at the top, ``inset`` further in at the bottom)
+        r_shift = 0.5 * t * math.cos(alpha) + 0.5 * inset
+        xy = tangent_pt - r_shift * normal
+        phi = math.atan2(normal[1], normal[0])
+        quat = quat_mul(quat_from_axis_angle((0.0, 0.0, 1.0), phi), q_lean)
+        geoms.append(piece((0.5 * t, half_w, 0.5 * length), np.array([*xy, z_mid]), quat))
+    return geoms
+
+
+_IDENT = np.array([1.0, 0.0, 0.0, 0.0])
+
+
 def object_parts(obj: ObjectSpec) -> list[_Geom]:
     """The convex pieces of an object in its body frame (origin = bounding-box centre)."""
-    ident = np.array([1.0, 0.0, 0.0, 0.0])
+    ident = _IDENT
     sx, sy, sz = obj.size
     if obj.shape == "box":
         return [_Geom("box", (sx / 2, sy / 2, sz / 2), np.zeros(3), ident, 1.0, None)]
@@ -251,17 +369,68 @@ def object_parts(obj: ObjectSpec) -> list[_Geom]:
         return [_Geom("sphere", (sx / 2,), np.zeros(3), ident, 1.0, None)]
     if obj.shape == "vessel":
         return _vessel_geoms(obj)
-    return [
-        _Geom(
-            p.type,
-            p.size,
-            np.asarray(p.pos, float),
-            quat_from_euler_xyz(p.euler, degrees=True),
-            p.weight,
-            p.rgba,
+    out: list[_Geom] = []
+    for p in obj.parts:
+        if p.type == "dish":
+            out += _dish_geoms(p)
+            continue
+        out.append(
+            _Geom(
+                p.type,
+                p.size,
+                np.asarray(p.pos, float),
+                quat_from_euler_xyz(p.euler, degrees=True),
+                p.weight,
+                p.rgba,
+                p.material,
+            )
         )
-        for p in obj.parts
-    ]
+    return out
+
+
+@dataclass(frozen=True)
+class PadContacts:
+    """The robot's finger pads in an MjSpec, for pairing them with objects.
+
+    A pad touching an object gets the friction of the pad-vs-material pair from the
+    catalogue's ``pad_friction`` table; the contact's softness (solref, solimp), margin and
+    gap are the pad's own, from the robot description, and its condim the larger of the
+    pad's and the object's (MuJoCo's rule for a dynamic contact). Build it with
+    :func:`pad_contacts`.
+    """
+
+    spec: mujoco.MjSpec
+    pads: tuple[str, ...]
+    condim: int
+    solref: tuple[float, float]
+    solimp: tuple[float, ...]
+    margin: float
+    gap: float
+    friction: dict[str, PadFriction]
+
+
+def pad_contacts(spec: mujoco.MjSpec, catalogue: Catalogue) -> PadContacts | None:
+    """The finger pads of the robot in ``spec`` (None when it holds no robot)."""
+    from quadmanip.common.robot_description import FINGER_PAD_GEOMS
+
+    geoms = [spec.geom(name) for name in FINGER_PAD_GEOMS]
+    if any(g is None for g in geoms):
+        return None
+    for g in geoms:
+        # the pads must not touch paired objects dynamically (see OBJECT_CONTYPE)
+        if g.contype & OBJECT_CONAFFINITY or g.conaffinity & OBJECT_CONTYPE:
+            raise ValueError(f"pad {g.name!r}: contype/conaffinity overlap the objects' bits")
+    ref = geoms[0]
+    return PadContacts(
+        spec=spec,
+        pads=FINGER_PAD_GEOMS,
+        condim=int(ref.condim),
+        solref=(float(ref.solref[0]), float(ref.solref[1])),
+        solimp=tuple(float(v) for v in ref.solimp),
+        margin=float(ref.margin),
+        gap=float(ref.gap),
+        friction=catalogue.pad_friction,
+    )
 
 
 def add_object(
@@ -271,11 +440,16 @@ def add_object(
     pos: tuple[float, float, float] | np.ndarray = (0.0, 0.0, 0.0),
     quat: tuple[float, float, float, float] | np.ndarray = (1.0, 0.0, 0.0, 0.0),
     contact: Contact | None = None,
+    pads: PadContacts | None = None,
 ) -> mujoco.MjsBody:
     """Add ``obj/<name>`` (a free body made of the object's convex parts) under ``parent``.
 
     Every part gets mass = total mass x (weight x volume) / sum(weight x volume), so the body
-    weighs exactly the catalogue mass; MuJoCo derives the inertia from the shapes.
+    weighs exactly the catalogue mass; MuJoCo derives the inertia from the shapes. With
+    ``pads`` (the robot's finger pads, :func:`pad_contacts`) every geom gets one explicit
+    contact pair per pad with its material's pad friction, and collision bits that keep
+    the pads from also touching it dynamically. Without, the pads touch it with the pad's
+    own (generic) friction.
     """
     contact = contact or Contact()
     body = parent.add_body(name=f"obj/{name}", pos=list(pos), quat=list(quat))
@@ -284,7 +458,7 @@ def add_object(
     weighted = [g.weight * _volume(g.type, g.size) for g in geoms]
     total = sum(weighted)
     for i, (g, w) in enumerate(zip(geoms, weighted, strict=True)):
-        body.add_geom(
+        geom = body.add_geom(
             name=f"obj/{name}/g{i}",
             type=_GEOM_TYPE[g.type],
             size=list(g.size) + [0.0] * (3 - len(g.size)),
@@ -298,4 +472,20 @@ def add_object(
             solmix=contact.solmix,
             group=1,  # world geoms use groups 0/1; the robot keeps 2 (visual) and 3
         )
+        if pads is None:
+            continue
+        geom.contype, geom.conaffinity = OBJECT_CONTYPE, OBJECT_CONAFFINITY
+        f = pads.friction[g.material or obj.material]
+        for pad in pads.pads:
+            pads.spec.add_pair(
+                name=f"{pad}/obj/{name}/g{i}",
+                geomname1=pad,
+                geomname2=geom.name,
+                condim=max(pads.condim, obj.condim),
+                friction=[f.sliding, f.sliding, f.torsional, f.rolling, f.rolling],
+                solref=list(pads.solref),
+                solimp=list(pads.solimp),
+                margin=pads.margin,
+                gap=pads.gap,
+            )
     return body

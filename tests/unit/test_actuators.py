@@ -7,7 +7,12 @@ so the numbers here depend only on the actuator layer, not on the robot descript
 import mujoco
 import numpy as np
 import pytest
-from quadmanip.common.robot_description import ARM_JOINTS, GRIPPER_JOINTS, LEG_JOINTS
+from quadmanip.common.robot_description import (
+    ARM_JOINTS,
+    GRIPPER_JOINTS,
+    LEG_JOINTS,
+    robot_spec,
+)
 from quadmanip.sim.actuators import (
     ActuatorConfig,
     ActuatorLayer,
@@ -25,8 +30,8 @@ F_GRIP = 40.0
 
 def _model() -> mujoco.MjModel:
     """Fixed-base stand-in: one hinge per robot joint, the robot's tendon-driven gripper
-    (two slides synchronised by an equality, one motor on the gap tendon) and the
-    description's ``velocity_limits`` numeric."""
+    (two slides synchronised by an equality, with the description's drive inertia, one
+    motor on the gap tendon) and the description's ``velocity_limits`` numeric."""
     bodies, motors = [], []
     for i, name in enumerate(LEG_JOINTS + ARM_JOINTS):
         bodies.append(
@@ -36,10 +41,11 @@ def _model() -> mujoco.MjModel:
         )
         lim = TAU_LEG if name in LEG_JOINTS else TAU_ARM
         motors.append(f'<motor joint="{name}" ctrlrange="{-lim} {lim}" ctrllimited="true"/>')
+    armature = robot_spec().joint(GRIPPER_JOINTS[0]).armature  # the drive's inertia
     for k, name in enumerate(GRIPPER_JOINTS):
         bodies.append(
             f'<body name="b_{name}" pos="20 {k} 0"><joint name="{name}" type="slide" '
-            f'axis="0 1 0" range="0 0.05" limited="true" damping="2"/>'
+            f'axis="0 1 0" range="0 0.05" limited="true" damping="2" armature="{armature}"/>'
             '<geom type="box" size="0.01 0.01 0.01" mass="0.05"/></body>'
         )
     motors.append(f'<motor name="gripper" tendon="gap" ctrlrange="{-F_GRIP} {F_GRIP}"/>')
@@ -284,15 +290,25 @@ def test_arm_follows_trajectory_in_physics(layer):
 def test_gripper_force_clamped_to_max_force(layer):
     m, d, act = layer
     assert act.gripper_gap_range() == (0.0, 0.1)
-    # Fingers far from the target: the force saturates at max_force, not at the motor limit.
+    step = m.opt.timestep
+    # Fingers held far from the target (blocked): once the ramped setpoint has moved past
+    # them the force saturates at max_force, not at the motor limit, and stays there.
     d.qpos[act.gripper.qpos] = 0.04
     assert act.set_gripper_command(d.time, 0.0, 7.5)
-    act.apply(d)
+    for _ in range(20):
+        act.apply(d)
+        d.time += step
     np.testing.assert_allclose(d.ctrl[act.gripper.act], -7.5)
-    # Close to the target: proportional control on the gap (sum of the two fingers).
+    # Anti-windup: the setpoint waits just past the blocked fingers instead of running on
+    # to the commanded gap.
+    assert act.gripper_setpoint == pytest.approx(0.08, abs=2e-3)
+    # At the target: proportional control on the gap (sum of the two fingers).
     d.qpos[act.gripper.qpos] = 0.0201
     assert act.set_gripper_command(d.time, 0.04, 30.0)
-    act.apply(d)
+    for _ in range(30):
+        act.apply(d)
+        d.time += step
+    assert act.gripper_setpoint == pytest.approx(0.04, abs=1e-12)
     np.testing.assert_allclose(
         d.ctrl[act.gripper.act], act.config.gripper_kp * (0.04 - 0.0402), atol=1e-9
     )
@@ -304,3 +320,132 @@ def test_gripper_force_clamped_to_max_force(layer):
     assert act.gripper_gap(d) == pytest.approx(0.06, abs=5e-4)
     q = d.qpos[act.gripper.qpos]
     assert q[0] == pytest.approx(q[1], abs=1e-3)
+
+
+# Finger-speed tolerance: the ramped setpoint moves at exactly the rated gap speed and the
+# torque-speed envelope stops the motor pushing past it; being explicit, it can overshoot
+# by one step's speed change (~1.5 % when a squeezed object vanishes). The two fingers are
+# kept in step by a soft equality, so one may run a few percent ahead of the other. 2 % on
+# the gap rate, 7 % on a single finger.
+SPEED_TOL = 0.02
+FINGER_TOL = 0.07
+
+
+def _gripper_model(with_object: bool) -> mujoco.MjModel:
+    """A fixed palm with the robot's gripper (two pads facing each other, slides synchronised
+    by an equality, one motor on the gap tendon, the description's finger damping and
+    armature and its 0.15 m/s rated gap speed) and, optionally, a free 30 mm box floating
+    between the pads (no gravity)."""
+    robot = robot_spec()
+    joint = robot.joint(GRIPPER_JOINTS[0])
+    fingers = "".join(
+        f'<body name="{name}"><joint name="{name}" type="slide" axis="0 {sign} 0" '
+        f'range="0 0.06" damping="{joint.damping[0]}" armature="{joint.armature}"/>'
+        f'<geom type="box" size="0.02 0.003 0.011" pos="0 {sign * 0.003} 0" mass="0.04" '
+        'friction="1 0.005 0.0001" condim="4" solref="0.004 1"/></body>'
+        for name, sign in zip(GRIPPER_JOINTS, (1, -1), strict=True)
+    )
+    obj = (
+        '<body name="obj" pos="0 0 0"><freejoint/><geom type="box" size="0.02 0.015 0.02" '
+        'mass="0.1" solref="0.004 1"/></body>'
+        if with_object
+        else ""
+    )
+    bodies, motors = [], []
+    for i, name in enumerate(LEG_JOINTS + ARM_JOINTS):
+        bodies.append(
+            f'<body pos="{i + 1} 0 0"><joint name="{name}" axis="0 1 0"/>'
+            '<geom type="sphere" size="0.02" mass="1" contype="0" conaffinity="0"/></body>'
+        )
+        motors.append(f'<motor joint="{name}" ctrlrange="-10 10"/>')
+    speeds = " ".join(["30"] * 12 + ["6"] * 4 + ["0.15"])
+    xml = (
+        '<mujoco><option gravity="0 0 0" timestep="0.001" integrator="implicitfast" '
+        'cone="elliptic" impratio="10"/><worldbody><body name="palm">'
+        + fingers
+        + "</body>"
+        + obj
+        + "".join(bodies)
+        + '</worldbody><tendon><fixed name="gap"><joint joint="gripper_left" coef="1"/>'
+        '<joint joint="gripper_right" coef="1"/></fixed></tendon>'
+        '<equality><joint joint1="gripper_right" joint2="gripper_left" solref="0.005 1"/>'
+        "</equality><actuator>"
+        + "".join(motors)
+        + '<motor name="gripper" tendon="gap" ctrlrange="-40 40"/></actuator>'
+        f'<custom><numeric name="velocity_limits" data="{speeds}"/></custom></mujoco>'
+    )
+    return mujoco.MjModel.from_xml_string(xml)
+
+
+@pytest.mark.parametrize("with_object", [False, True])
+def test_fingers_never_exceed_the_rated_gap_speed(with_object):
+    """Open -> closed at the full 40 N: the fingers move at the description's rated speed
+    (0.15 m/s of gap, 0.075 m/s per pad), never faster, and a blocked close still
+    squeezes the object at the commanded force."""
+    m = _gripper_model(with_object)
+    d = mujoco.MjData(m)
+    act = ActuatorLayer(m, ActuatorConfig(), LEG_JOINTS, ARM_JOINTS, GRIPPER_JOINTS)
+    v_lim = 0.15
+    assert act.gripper_speed == pytest.approx(v_lim)  # read from the model's numeric
+    d.qpos[act.gripper.qpos] = 0.05  # open: gap 0.1 m
+    mujoco.mj_forward(m, d)
+    gaps, v_gap, v_fingers = [], [], []
+
+    def run(seconds: float) -> None:
+        for _ in range(round(seconds / m.opt.timestep)):
+            act.apply(d)
+            mujoco.mj_step(m, d)
+            gaps.append(act.gripper_gap(d))
+            v_fingers.append(np.abs(d.qvel[act.gripper.dof]).max())
+            v_gap.append(abs(d.qvel[act.gripper.dof].sum()))
+
+    assert act.set_gripper_command(d.time, 0.0, 40.0)
+    run(1.0)
+    rate = np.abs(np.diff(gaps)) / m.opt.timestep  # the gap's measured rate of change
+    assert max(v_gap) <= v_lim * (1 + SPEED_TOL)
+    assert rate.max() <= v_lim * (1 + SPEED_TOL)
+    assert max(v_fingers) <= 0.5 * v_lim * (1 + FINGER_TOL)  # each pad moves half the gap
+    # It really moves at the rated speed (not slower): 0.1 m -> the object / closed in
+    # about gap / 0.15 m/s.
+    t_half = np.argmax(np.asarray(gaps) < 0.07) * m.opt.timestep
+    assert t_half == pytest.approx(0.03 / v_lim, abs=0.01)
+    if with_object:
+        # Blocked at the object's 30 mm, squeezing at the full commanded force.
+        assert act.gripper_gap(d) == pytest.approx(0.03, abs=1.5e-3)
+        assert act.tau[act.gripper.act] == pytest.approx(-40.0)
+    else:
+        assert act.gripper_gap(d) < 1e-3
+    # Opening again follows the ramp too (the setpoint did not wind up past the object).
+    gaps.clear(), v_gap.clear(), v_fingers.clear()
+    assert act.set_gripper_command(d.time, 0.1, 40.0)
+    run(0.8)
+    rate = np.abs(np.diff(gaps)) / m.opt.timestep
+    assert max(v_gap) <= v_lim * (1 + SPEED_TOL)
+    assert rate.max() <= v_lim * (1 + SPEED_TOL)
+    assert max(v_fingers) <= 0.5 * v_lim * (1 + FINGER_TOL)
+    assert act.gripper_gap(d) == pytest.approx(0.1, abs=1e-3)
+
+
+def test_fingers_freed_while_squeezing_stay_within_the_rated_speed():
+    """The object vanishes from a 40 N squeeze (it slipped out): the motor is at its current
+    limit, yet the fingers close no faster than the rated speed (the back-EMF line)."""
+    m = _gripper_model(True)
+    d = mujoco.MjData(m)
+    act = ActuatorLayer(m, ActuatorConfig(), LEG_JOINTS, ARM_JOINTS, GRIPPER_JOINTS)
+    d.qpos[act.gripper.qpos] = 0.02  # 40 mm, closing on the 30 mm box
+    mujoco.mj_forward(m, d)
+    assert act.set_gripper_command(d.time, 0.0, 40.0)
+    for _ in range(300):
+        act.apply(d)
+        mujoco.mj_step(m, d)
+    assert act.tau[act.gripper.act] == pytest.approx(-40.0, abs=0.5)  # squeezing
+    free = next(j for j in range(m.njnt) if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE)
+    obj = m.jnt_qposadr[free]
+    d.qpos[obj : obj + 3] = (0.0, 0.0, 1.0)  # test disturbance: the object is gone
+    v_gap = []
+    for _ in range(400):
+        act.apply(d)
+        mujoco.mj_step(m, d)
+        v_gap.append(abs(d.qvel[act.gripper.dof].sum()))
+    assert max(v_gap) <= 0.15 * (1 + SPEED_TOL)
+    assert act.gripper_gap(d) < 1e-3  # and they did close

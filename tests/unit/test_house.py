@@ -96,14 +96,18 @@ def test_six_deposit_places_with_regions(world):
     m = world.model
     data = world.initial_data()
     for r in world.regions:
-        assert min(r.half_size) > 0.02, r.name
+        assert min(r.half_size[:2]) > 0.02 and r.half_size[2] > 0.005, r.name
+        assert m.body_geomnum[m.body(r.support_body).id] > 0, r.name
         if r.body == "world":
-            # Fixed regions sit on top of real geometry (a container bottom under the centre).
+            # A fixed region is the container's inside: its bottom on the container's bottom
+            # plate (straight down from the rim), its rim at the top of the walls (a ray
+            # across, just below the rim, meets a wall; just above, it does not).
             c = np.array(r.center)
             top = c + [0.0, 0.0, r.half_size[2]]
             dist = _ray(m, data, top, [0, 0, -1])
-            floor_of_region = c[2] - r.half_size[2]
-            assert dist > 0 and abs((top[2] - dist) - floor_of_region) < 0.002, r.name
+            assert dist > 0 and abs((top[2] - dist) - r.bottom) < 0.002, r.name
+            assert 0 < _ray(m, data, top - [0, 0, 0.003], [1, 0, 0]) <= r.half_size[0] + 1e-3
+            assert not 0 < _ray(m, data, top + [0, 0, 0.003], [1, 0, 0]) <= r.half_size[0] + 0.02
 
 
 def test_robot_starts_on_the_floor_of_room_1(world):

@@ -411,7 +411,10 @@ def test_gripper_opening_and_pads(model) -> None:
         assert data.ten_length[model.tendon(rd.GRIPPER_TENDON).id] == pytest.approx(gap)
     for pad in rd.FINGER_PAD_GEOMS:
         g = model.geom(pad)
-        assert g.condim[0] in (4, 6) and 1.0 <= g.friction[0] <= 1.5 and g.friction[1] > 0
+        # dry silicone on painted wood / metal; torsional = (2/3) mu a for a patch of a few
+        # mm (catalogue objects get per-material pairs, configs/objects.toml)
+        assert g.condim[0] in (4, 6) and 0.5 <= g.friction[0] <= 1.0
+        assert 0.002 <= g.friction[1] <= 0.006
         assert g.priority[0] > 0
 
 

@@ -309,9 +309,21 @@ def test_gt_base_without_a_base_entry_is_ignored(recording: Recording) -> None:
 
 def test_judge_and_heartbeat_text(recording: Recording) -> None:
     judge = m.JudgeReport(
-        stamp=30.0, trial_time=30.0, in_place=["cup"], misplaced=["banana", "can"], total=3
+        stamp=30.0,
+        trial_time=30.0,
+        in_place=["cup"],
+        misplaced=["banana", "can"],
+        total=3,
+        objects=["cup", "banana", "can"],
+        locations=["in_place", "held", "floor"],
+        notes=["", "touches the robot", "belongs in tray"],
+        positions=np.zeros((3, 3)),
+        rest_s=np.zeros(3),
     )
     rl.log_judge(recording.rec, judge)
+    rl.log_judge(
+        recording.rec, judge.replace(stamp=31.0, valid=False, violations=["qfrc_applied x2"])
+    )
     tracker = rl.HeartbeatTracker()
     hb = [
         m.Heartbeat(stamp=1.0, service="sim", seq=0, state="running"),
@@ -325,7 +337,12 @@ def test_judge_and_heartbeat_text(recording: Recording) -> None:
     assert tracker.services == {"sim": "starting"}
     rows = recording.read()
     j = rows["/log/judge"][0]
-    assert "1/3 in place" in j["TextLog:text"][0] and "banana, can" in j["TextLog:text"][0]
+    assert "1/3 in place" in j["TextLog:text"][0]
+    assert "banana (held: touches the robot), can (floor: belongs in tray)" in j["TextLog:text"][0]
+    bad = rows["/log/judge"][1]
+    assert bad["TextLog:text"][0].startswith("INVALID TRIAL (qfrc_applied x2)")
+    assert bad["TextLog:level"][0] == "ERROR"
+    assert "/world/gt/judge" in rows
     assert rows["/plots/judge/in_place"][0]["Scalars:scalars"] == [1.0]
     lines = rows["/log/heartbeat/sim"]
     assert [r[rl.TIMELINE] for r in lines] == [1.0, 3.0, 6.0, 7.0]
