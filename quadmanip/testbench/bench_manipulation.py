@@ -147,6 +147,7 @@ def _place_trial(name: str) -> dict[str, Any]:
         container_boxes,
         container_inner,
         plan_grasp_from_ground_truth,
+        resting_in_box,
         table_boxes,
     )
 
@@ -198,13 +199,10 @@ def _place_trial(name: str) -> dict[str, Any]:
         cfg.motion.kd,
         40.0,
     )
-    h.settle(1.0)
-    end = h.object_pos(name)
-    inside = (
-        abs(end[0] - cx) < ix and abs(end[1]) < iy and surface < end[2] < surface + height + 0.15
-    )
+    h.settle(1.5)  # longer than the judge's 1 s at rest
+    inside = resting_in_box(h, name, cx, (ix, iy), surface + cont.bottom, surface + height)
     out.update(
-        success=bool(inside),
+        success=inside,
         primitive=p.status.value,
         reason=p.reason,
         time_s=float(h.data.time) - t0,

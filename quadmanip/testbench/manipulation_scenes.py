@@ -54,6 +54,7 @@ __all__ = [
     "drawer_world",
     "grasp_from_ground_truth",
     "in_region",
+    "resting_in_box",
     "table_boxes",
 ]
 
@@ -628,8 +629,40 @@ def container_boxes(place: str, center_x: float, surface_z: float = 0.0) -> list
     ]
 
 
+def resting_in_box(
+    h: SimHarness,
+    name: str,
+    center_x: float,
+    inner: tuple[float, float],
+    bottom: float,
+    rim: float,
+) -> bool:
+    """GROUND TRUTH: the judge's rule (``quadmanip.sim.judge``) for a harness container
+    centred at (center_x, 0): the object's centre inside the inner footprint, between the
+    inner bottom and ``max(rim, bottom + half its longest side) + tolerance``, at rest and
+    touching no part of the robot. (The harness has no judge: its boxes are not the house's
+    places. Call it after the object had the judge's rest time to settle.)"""
+    from quadmanip.sim.judge import JudgeConfig
+
+    cfg = JudgeConfig()
+    m, d = h.model, h.data
+    body = m.body(f"obj/{name}").id
+    p = d.xpos[body]
+    half_long = 0.5 * max(h.catalogue.objects[name].size)
+    top = max(rim, bottom + half_long) + cfg.height_tolerance
+    inside = abs(p[0] - center_x) <= inner[0] and abs(p[1]) <= inner[1] and bottom <= p[2] <= top
+    v = np.zeros(6)
+    mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, body, v, 0)
+    at_rest = np.linalg.norm(v[3:]) < cfg.rest_linear and np.linalg.norm(v[:3]) < cfg.rest_angular
+    roots = m.body_rootid[m.geom_bodyid[d.contact.geom[: d.ncon]]]  # (ncon, 2)
+    pair = np.sort([m.body_rootid[m.body("base").id], m.body_rootid[body]])
+    touches_robot = bool(np.any(np.all(np.sort(roots, axis=1) == pair, axis=1)))
+    return bool(inside and at_rest and not touches_robot)
+
+
 def container_inner(place: str, center_x: float) -> tuple[float, float, float]:
-    """Inner half-extents (x, y) and height of a container placed by :func:`container_boxes`."""
+    """Inner half-extents (x, y) and outer height of a container placed by
+    :func:`container_boxes`."""
     from quadmanip.sim.world.house import load_house
 
     c = next(c for c in load_house().containers if c.name == place)

@@ -59,6 +59,7 @@ TABLE_EDGE_AHEAD = 0.27  # the table edge this far ahead of the base (m)
 HANDLE_STANDOFF = 0.51  # base to a closed drawer's handle when opening it (m)
 PLACE_REACH = 0.43  # release point ahead of the base for containers (m)
 RETRY_REASONS = ("too_close", "self_collision")  # a step back fixes these
+LATERAL_REASON = "lateral_out_of_range"  # facing the grasp point again fixes this
 
 
 def _rng(*key: object) -> np.random.Generator:
@@ -173,7 +174,8 @@ def _grasp(
     s: StackRun, cat: Catalogue, name: str, surface_z: float, approach: str
 ) -> tuple[Any, dict[str, Any]]:
     """Perception stand-in + the grasp action, with the retries a task would make: the far
-    wall of a flared vessel, then one step back (8 cm) when the arm is too close."""
+    wall of a flared vessel; facing the grasp point again when it lies too far to the side
+    for the grasp's yaw; one step back (8 cm) when the arm is too close."""
     info: dict[str, Any] = {"walked": False, "stepped_back": False, "far_side": False}
 
     def spec(far: bool = False) -> GraspSpec:
@@ -198,12 +200,7 @@ def _grasp(
         info["walked"] = True
         gs = spec()
     out = None
-    for step_back in (False, True):
-        if step_back:
-            _, _, yaw = s.base_frame()
-            s.face(world_of(gs)[:2], yaw, float(gs.position_base[0]) + 0.08)
-            info["stepped_back"] = True
-            gs = spec()
+    for attempt in range(3):
         reasons = []
         for far in (False, True) if gs.tilt else (False,):
             g = spec(far) if far else gs
@@ -225,8 +222,20 @@ def _grasp(
             if out.accepted:
                 return out, info
             reasons.append(out.reason)
-        if not any(r in why for r in RETRY_REASONS for why in reasons):
+        if attempt == 2:
             break
+        _, _, yaw = s.base_frame()
+        if any(LATERAL_REASON in why for why in reasons):
+            # the walk stopped within its tolerance but too far to the side for this grasp
+            # yaw: face the grasp point again, more closely
+            s.face(world_of(gs)[:2], yaw, float(np.clip(gs.position_base[0], *AHEAD)), 0.015)
+            info["walked"] = True
+        elif any(r in why for r in RETRY_REASONS for why in reasons) and not info["stepped_back"]:
+            s.face(world_of(gs)[:2], yaw, float(gs.position_base[0]) + 0.08)
+            info["stepped_back"] = True
+        else:
+            break
+        gs = spec()
     assert out is not None
     return out, info
 
