@@ -183,7 +183,12 @@ class ManipulationConfig:
         # here so every loader (the service runtime's too) gets it.
         from quadmanip.common.robot_description import robot_info
 
-        max_gap = robot_info().gripper_max_gap
+        info = robot_info()
+        max_gap = info.gripper_max_gap
+        if self.gripper.rated_force <= 0.0:
+            # the description's force limit, never a copied constant (like open_gap)
+            g = replace(self.gripper, rated_force=info.gripper_max_force)
+            object.__setattr__(self, "gripper", g)
         if self.gripper.open_gap <= 0.0:
             object.__setattr__(self, "gripper", replace(self.gripper, open_gap=max_gap))
         elif self.gripper.open_gap > max_gap + 1e-9:

@@ -49,7 +49,7 @@ from quadmanip.services.manipulation.grasp import (
     plan_grasp,
 )
 from quadmanip.services.manipulation.gravity import GravityCompensator
-from quadmanip.services.manipulation.gripper import GraspMonitor, GripState
+from quadmanip.services.manipulation.gripper import GraspMonitor, GripState, grasp_force
 from quadmanip.services.manipulation.place import PlacePrimitive, plan_place
 from quadmanip.services.manipulation.postures import resolve_postures
 from quadmanip.services.manipulation.primitive import (
@@ -378,7 +378,8 @@ class Executive:
             held_across = cfg.postures[request.posture].held_across
             return PostureMove(self.geom, cfg, self.postures[request.posture], held_across, **kw)
         if isinstance(request, GraspRequest):
-            return GraspPrimitive(self.geom, cfg, self._plan_grasp(request), **kw)
+            force = grasp_force(cfg.gripper, request.mass)
+            return GraspPrimitive(self.geom, cfg, self._plan_grasp(request), force=force, **kw)
         if isinstance(request, PlaceRequest):
             if not self.monitor.holding:
                 raise GraspRejected("not_holding", "the gripper holds nothing to place")

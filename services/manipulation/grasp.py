@@ -223,10 +223,12 @@ class GraspPrimitive(Primitive):
         monitor: GraspMonitor | None = None,
         body: BodyPoseRequest | None = None,
         restore_body: bool = True,
+        force: float | None = None,
     ) -> None:
         super().__init__(geom, cfg, monitor, body)
         self.plan = plan
         self.restore_body = restore_body
+        self.force = force  # N squeeze (None: the configured max_force)
         self.t_lifted: float | None = None
 
     def script(self) -> Script:
@@ -249,7 +251,7 @@ class GraspPrimitive(Primitive):
         # that stopped short lifts thin objects out of the pads)
         yield from self.follow_drift(plan.reach, "grasp")
         self.stage("grasp: close", 0.6)
-        yield from self.close_gripper()
+        yield from self.close_gripper(self.force)
         if self.monitor.state is not GripState.HOLDING:
             yield from self.open_gripper()
             raise PrimitiveFailed("grasp_missed: fingers closed on nothing")

@@ -159,3 +159,18 @@ def test_blocked_fingers_squeeze_at_the_force_limit(thickness):
     assert gap == pytest.approx(thickness, abs=3e-4)  # stalled on the plate (pads ~0.1 mm in)
     assert effort == pytest.approx(-30.0, abs=0.5)  # closing force saturated
     assert normal == pytest.approx(2 * 30.0, rel=0.03)  # both pads press with 30 N each
+
+
+def test_heavier_objects_are_squeezed_harder_up_to_the_rated_force():
+    """30 N for light or unknown objects, 100 N/kg above that, never beyond the gripper's
+    rated force from the robot description (40 N)."""
+    from quadmanip.common.robot_description import robot_info
+    from quadmanip.services.manipulation.config import load_manipulation_config
+    from quadmanip.services.manipulation.gripper import grasp_force
+
+    g = load_manipulation_config().gripper
+    assert g.rated_force == robot_info().gripper_max_force == 40.0
+    assert grasp_force(g, 0.0) == g.max_force == 30.0  # unknown mass
+    assert grasp_force(g, 0.026) == 30.0  # the cup
+    assert grasp_force(g, 0.35) == 35.0
+    assert grasp_force(g, 0.414) == 40.0  # the coffee can: capped at the rated force
