@@ -4,7 +4,7 @@ Built from each class's compiled field specs, so a newly added message type gets
 example automatically. Values are distinct (``arange``-based) so that a delivery test
 comparing sent and received messages catches swapped or corrupted elements; fields with
 cross-field rules use the few conventions below (unit quaternions, unit directions,
-one common length for the variable first dimension).
+one common length for the variable first dimension, ``_CROSS_FIELD``).
 """
 
 from __future__ import annotations
@@ -63,9 +63,24 @@ def _value(spec: FieldSpec, seed: int, depth: int) -> Any:
     raise ValueError(f"no example rule for field kind {spec.kind!r} ({spec.name})")
 
 
+# Fields whose values a message's own cross-field rules tie together (the judge's report:
+# one location per object from a closed set, in_place = the objects located there, a trial
+# with violations is invalid).
+_CROSS_FIELD: dict[str, dict[str, Any]] = {
+    "qm.JudgeReport": {
+        "in_place": ["name0"],
+        "misplaced": ["name1", "name2"],
+        "total": 3,
+        "locations": ["in_place", "wrong_place", "held"],
+        "valid": False,
+    },
+}
+
+
 def example(cls: type[Message], seed: int = 1, depth: int = 0) -> Message:
     """A valid instance of ``cls`` (optional nested messages are filled, not None)."""
     kwargs = {s.name: _value(s, seed + i, depth) for i, s in enumerate(field_specs(cls))}
+    kwargs.update(_CROSS_FIELD.get(cls.SCHEMA, {}))
     return cls(**kwargs)
 
 
