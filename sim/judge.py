@@ -41,7 +41,7 @@ from quadmanip.common.robot_description import BASE_BODY
 from quadmanip.sim.world.builder import World
 from quadmanip.sim.world.house import DepositRegion
 
-__all__ = ["Judge", "JudgeConfig"]
+__all__ = ["Judge", "JudgeConfig", "highest_centre"]
 
 
 @dataclass(frozen=True)
@@ -55,6 +55,12 @@ class JudgeConfig:
     # Hz (sim time) of rest and contact tracking: 10 ms resolution on "1 s at rest" for
     # ~75 us per sample with 10 objects awake (a fifth of the cost of every 2 ms tick).
     track_rate: float = 100.0
+
+
+def highest_centre(bottom: float, rim: float, half_long: float, config: JudgeConfig) -> float:
+    """Rule 1's upper bound on a placed object's centre: no higher above the rim than the
+    object (half its longest side ``half_long``) would stand inside on the ``bottom``."""
+    return max(rim, bottom + half_long) + config.height_tolerance
 
 
 # Partner kinds of a contact, as seen from an object.
@@ -199,11 +205,10 @@ class Judge:
     ) -> tuple[int | None, int | None]:
         """(own region containing object i's centre, another category's region)."""
         own = other = None
-        tol = self.config.height_tolerance
         for k, r in enumerate(self.regions):
             pos, rot = frames[k]
             local = rot.T @ (p - pos)
-            top = max(r.rim, r.bottom + self._half_long[i]) + tol
+            top = highest_centre(r.bottom, r.rim, self._half_long[i], self.config)
             if r.contains_local(local, top=top):
                 if r.place == self._place[i]:
                     own = k if own is None else own

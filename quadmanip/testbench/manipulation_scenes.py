@@ -642,14 +642,15 @@ def resting_in_box(
     inner bottom and ``max(rim, bottom + half its longest side) + tolerance``, at rest and
     touching no part of the robot. (The harness has no judge: its boxes are not the house's
     places. Call it after the object had the judge's rest time to settle.)"""
-    from quadmanip.sim.judge import JudgeConfig
+    from quadmanip.common.config import load_config
+    from quadmanip.sim.engine import SimConfig
+    from quadmanip.sim.judge import highest_centre
 
-    cfg = JudgeConfig()
+    cfg = load_config(SimConfig, "sim").judge  # the sim's judge settings (configs/sim.toml)
     m, d = h.model, h.data
     body = m.body(f"obj/{name}").id
     p = d.xpos[body]
-    half_long = 0.5 * max(h.catalogue.objects[name].size)
-    top = max(rim, bottom + half_long) + cfg.height_tolerance
+    top = highest_centre(bottom, rim, 0.5 * max(h.catalogue.objects[name].size), cfg)
     inside = abs(p[0] - center_x) <= inner[0] and abs(p[1]) <= inner[1] and bottom <= p[2] <= top
     v = np.zeros(6)
     mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, body, v, 0)
