@@ -264,6 +264,7 @@ _TABLE: tuple[Topic, ...] = (
     row("sim", "camera/front", m.RgbdImage, "sensor", "out", "front RGB-D camera"),
     row("sim", "camera/gripper", m.RgbdImage, "sensor", "out", "gripper RGB-D camera"),
     row("sim", "scan", m.LaserScan, "sensor", "out", "2D LiDAR"),
+    row("sim", "status", m.RobotStatus, "event", "out", "control link: command age, timeouts"),
     # sim inputs (the actuator layer)
     row("sim", "leg_command", m.LegCommand, "control", "in", "leg PD + torque (locomotion)"),
     row("sim", "arm_trajectory", m.ArmTrajectory, "control", "in", "arm trajectory (manip.)"),
@@ -282,6 +283,7 @@ _TABLE: tuple[Topic, ...] = (
     row("locomotion", "payload", m.Payload, "control", "in", "mass in the gripper (manip.)"),
     row("locomotion", "odometry", m.Odometry, "sensor", "out", "estimated base state (odom)"),
     row("locomotion", "debug", m.LocomotionDebug, "sensor", "out", "gait, forces, MPC"),
+    row("locomotion", "health", m.LocomotionHealth, "event", "out", "ok/degraded/tripped + why"),
 )
 
 

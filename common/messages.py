@@ -53,11 +53,13 @@ __all__ = [
     "Heartbeat",
     "Imu",
     "JointState",
+    "HEALTH_STATES",
     "JUDGE_LOCATIONS",
     "JudgeReport",
     "LaserScan",
     "LegCommand",
     "LocomotionDebug",
+    "LocomotionHealth",
     "LocomotionMode",
     "LowState",
     "Message",
@@ -67,6 +69,7 @@ __all__ = [
     "PlaceGoal",
     "PostureGoal",
     "RgbdImage",
+    "RobotStatus",
     "decode",
     "encode",
     "example",
@@ -139,6 +142,32 @@ class LowState(Message):
 
 
 # --------------------------------------------------------------------------- commands
+
+
+@message("qm.RobotStatus", (1, 0))
+class RobotStatus(Message):
+    """The robot side's view of the control link (sim or hardware adapter), every
+    ``1/status_rate`` s: ``ticks`` control ticks in the window, of which ``stale_ticks``
+    had no new leg command (the last one was reused); the age (in ticks) of the leg
+    command applied, median and max over the window; ``leg_timeouts``: times the legs fell
+    back to damping because commands stopped (total since the start); ``rtf``: sim time
+    over wall time in the window (1.0 on hardware); ``leg_mode``: active or damping."""
+
+    stamp: float
+    ticks: int = 0
+    stale_ticks: int = 0
+    cmd_age_p50: float = 0.0
+    cmd_age_max: int = 0
+    leg_timeouts: int = 0
+    leg_mode: str = string(choices=("active", "damping"), default="damping")
+    rtf: float = 0.0
+    mode: str = string(max_len=16, default="")
+
+    def _check(self) -> None:
+        if min(self.ticks, self.stale_ticks, self.cmd_age_max, self.leg_timeouts) < 0:
+            raise MessageError("RobotStatus counts must be >= 0")
+        if self.stale_ticks > self.ticks:
+            raise MessageError("RobotStatus.stale_ticks exceeds ticks")
 
 
 @message("qm.LegCommand", (1, 0))
@@ -247,12 +276,62 @@ class Payload(Message):
             raise MessageError(f"Payload.mass must be in [0, 10] kg, got {self.mass}")
 
 
-@message("qm.LocomotionMode", (1, 0))
+@message("qm.LocomotionMode", (1, 1))
 class LocomotionMode(Message):
-    """Locomotion mode request: stand, sit, damp (passive damping) or walk."""
+    """Locomotion mode request: stand, sit, damp (passive damping), walk, or recover.
+
+    1.1: ``recover`` clears a latched safety trip (the explicit reset) and gets the robot
+    up: self-righting if it lies on a side, then standing up (docs/locomotion.md).
+    """
 
     stamp: float
-    mode: str = string(choices=("stand", "sit", "damp", "walk"))
+    mode: str = string(choices=("stand", "sit", "damp", "walk", "recover"))
+
+
+HEALTH_STATES: tuple[str, ...] = ("ok", "degraded", "tripped")
+
+
+@message("qm.LocomotionHealth", (1, 0))
+class LocomotionHealth(Message):
+    """Whether locomotion can be trusted right now (10 Hz, and at once on a change).
+
+    ``state``: ``ok``; ``degraded`` (it cannot keep up with the control deadline, so it
+    limits speed on purpose; ``max_speed`` is the forward speed it accepts now) or
+    ``tripped`` (the safety checker latched safe mode: legs damped until a ``recover``
+    mode command). ``reason`` says why in words. ``phase`` is the controller's phase
+    (damp, sit, standing_up, balance, walk, stopping, safe, righting). ``upright`` is False
+    when the IMU says the robot lies on a side or its back. Counters are totals since the
+    start: ticks never answered (``missed_ticks``), answers later than the deadline
+    (``late_answers``), MPC steps longer than their budget (``mpc_overruns``), and
+    what the robot side reports (``leg_timeouts``; ``cmd_age_ticks``: median age of the
+    leg command it applied, last window). ``scheduling`` says how the control loop runs
+    (e.g. "SCHED_FIFO priority 80 on 9 threads").
+    """
+
+    stamp: float
+    state: str = string(choices=HEALTH_STATES)
+    reason: str = string(max_len=256, default="")
+    phase: str = string(max_len=32, default="")
+    upright: bool = True
+    scheduling: str = string(max_len=128, default="")
+    max_speed: float = 0.0
+    missed_ticks: int = 0
+    late_answers: int = 0
+    mpc_overruns: int = 0
+    answer_ms_p99: float = 0.0
+    leg_timeouts: int = 0
+    cmd_age_ticks: float = 0.0
+    degraded_episodes: int = 0
+    trips: int = 0
+    rejected_commands: int = 0
+
+    def _check(self) -> None:
+        if self.state != "ok" and not self.reason:
+            raise MessageError(f"LocomotionHealth: a {self.state} state needs a reason")
+        counts = (self.missed_ticks, self.late_answers, self.mpc_overruns, self.leg_timeouts,
+                  self.degraded_episodes, self.trips, self.rejected_commands)  # fmt: skip
+        if min(counts) < 0 or self.max_speed < 0 or self.cmd_age_ticks < 0:
+            raise MessageError("LocomotionHealth counters and speeds must be >= 0")
 
 
 # --------------------------------------------------------------------------- sensors
@@ -533,7 +612,7 @@ class GroundTruthContacts(Message):
 JUDGE_LOCATIONS = ("in_place", "wrong_place", "held", "floor", "furniture", "elsewhere")
 
 
-@message("qm.JudgeReport", (2, 0))
+@message("qm.JudgeReport", (2, 1))
 class JudgeReport(Message):
     """The sim judge's verdict from ground truth (``sim/judge.py`` says what "placed"
     means): the placed objects, the others, and per object (parallel lists) where it is,
@@ -543,6 +622,8 @@ class JudgeReport(Message):
 
     2.0: "placed" became strict (inside the inner volume, supported by the place, not
     touching the robot, at rest for a while); per-object locations; ``valid``.
+    2.1: ``leg_timeouts``: times the legs fell back to damping because leg commands
+    stopped arriving (a controller that could not keep up), for the trial's record.
     """
 
     stamp: float
@@ -557,6 +638,7 @@ class JudgeReport(Message):
     rest_s: np.ndarray = array("f8", (None,), nonneg=True, max_elements=4096, default=np.zeros(0))
     valid: bool = True
     violations: list[str] = string_list(default_empty=True)
+    leg_timeouts: int = 0
 
     def _check(self) -> None:
         if self.total < len(self.in_place) + len(self.misplaced) or self.total < 0:

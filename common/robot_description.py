@@ -191,6 +191,28 @@ def lying_joint_positions(model: mujoco.MjModel | None = None) -> np.ndarray:
     return m.key(LYING_KEY).qpos[joint_qpos_indices(m)].copy()
 
 
+def leg_joint_limits(
+    model: mujoco.MjModel | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(lower, upper, torque limit) of the 12 leg joints in wire order: the joint ranges
+    (rad) and the motors' ``ctrlrange`` times gear (N m)."""
+    m = _model(model)
+    lo, hi, tau = [], [], []
+    for name in LEG_JOINTS:
+        jid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, name)
+        lo.append(float(m.jnt_range[jid, 0]))
+        hi.append(float(m.jnt_range[jid, 1]))
+        act = [
+            a for a in range(m.nu)
+            if m.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT and m.actuator_trnid[a, 0] == jid
+        ]  # fmt: skip
+        if not act:
+            raise KeyError(f"no motor drives leg joint {name!r}")
+        a = act[0]
+        tau.append(float(np.max(np.abs(m.actuator_ctrlrange[a])) * abs(m.actuator_gear[a, 0])))
+    return np.array(lo), np.array(hi), np.array(tau)
+
+
 def arm_dimensions(model: mujoco.MjModel | None = None) -> dict[str, float]:
     """d1..d5 of eq. (1) / Table 2, read from the body offsets of the compiled model.
 

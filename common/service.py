@@ -80,6 +80,7 @@ from quadmanip.common.config import (
 )
 from quadmanip.common.log import StructuredLogger, configure_logging, get_logger
 from quadmanip.common.messages import Heartbeat
+from quadmanip.common.scheduling import SchedulingConfig, SchedulingResult, ThreadScheduler
 from quadmanip.common.schema import Message
 
 __all__ = [
@@ -145,6 +146,8 @@ class Service:
         self.stop_event = threading.Event()
         self._state: State = "starting"
         self.step_errors = 0
+        # What the runtime achieved of scheduling() (None: not applied, or not asked for).
+        self.scheduling_result: SchedulingResult | None = None
 
     # --- declarations ------------------------------------------------------------
     @classmethod
@@ -265,6 +268,14 @@ class Service:
             raise KeyError(f"{self.name}: action {action!r} is not declared (declared: {known})")
         return self.bus.action_server(self.name, action, execute, accept=accept, policy=policy)
 
+    # --- scheduling ----------------------------------------------------------------
+    def scheduling(self) -> SchedulingConfig | None:
+        """The scheduling policy of this process's threads (common/scheduling.py): the
+        config's ``scheduling`` table if it has one. Override to decide at run time (the
+        sim asks for real-time priority only in realtime mode)."""
+        cfg = getattr(self.config, "scheduling", None)
+        return cfg if isinstance(cfg, SchedulingConfig) else None
+
     # --- lifecycle (override these) ------------------------------------------------
     def setup(self) -> None:
         """Declare publishers, subscribers and action servers; load models."""
@@ -357,6 +368,7 @@ class _Heartbeat:
         self._stop = threading.Event()
         self._pub = service.bus.publisher(f"{service.name}/heartbeat")
         self._seq = 0
+        self.scheduler: ThreadScheduler | None = None
         self._thread = threading.Thread(target=self._loop, name="heartbeat", daemon=True)
 
     def start(self) -> None:
@@ -381,11 +393,32 @@ class _Heartbeat:
     def _loop(self) -> None:
         while not self._stop.is_set():
             self.beat()
+            if self.scheduler is not None:
+                self.scheduler.apply()  # threads Zenoh started since the last beat
             self._stop.wait(self._period)
 
     def stop(self) -> None:
         self._stop.set()
         self._thread.join(0.2)
+
+
+def _apply_scheduling(svc: Service, heartbeat: _Heartbeat, log: StructuredLogger) -> None:
+    """Give the service's threads its scheduling policy after setup (its Zenoh threads
+    exist by then); the heartbeat covers threads started later. Logged either way: a
+    control loop without real-time priority must say so."""
+    cfg = svc.scheduling()
+    if cfg is None or (cfg.policy == "normal" and not cfg.cpus):
+        return
+    sched = ThreadScheduler(cfg)
+    res = sched.apply()
+    svc.scheduling_result = sched.result
+    heartbeat.scheduler = sched
+    if res is None:
+        return
+    if res.realtime:
+        log.info("scheduling", applied=res.summary())
+    else:
+        log.warning("no real-time priority", applied=res.summary(), why="; ".join(res.reasons))
 
 
 def _exit_soon(code: int, delay: float = 0.5) -> None:
@@ -539,6 +572,7 @@ def run_service(
             "starting", robot=args.robot, mode=bus_config.mode, connect=",".join(bus_config.connect)
         )
         svc.setup()
+        _apply_scheduling(svc, heartbeat, log)
         if not svc.stop_event.is_set():
             if svc.state == "starting":
                 svc.set_state("running")

@@ -24,6 +24,7 @@ BENCH_TARGETS: dict[str, str] = {
     "sim": "quadmanip.testbench.bench_sim:main",
     "locomotion": "quadmanip.testbench.bench_locomotion:main",
     "manipulation": "quadmanip.testbench.bench_manipulation:main",
+    "robustness": "quadmanip.testbench.bench_robustness:main",
 }
 ROUTER_TARGET = "quadmanip.common.router:main"
 SIM_TOOLS: dict[str, str] = {"snapshot": "quadmanip.sim.snapshot:main"}

@@ -311,6 +311,8 @@ class ActuatorLayer:
         self._leg_cmd: tuple[np.ndarray, ...] | None = None
         self._leg_cmd_time = -np.inf
         self.leg_mode = LegMode.DAMPING
+        # Times the legs fell back to damping because commands stopped (active → damping).
+        self.leg_timeouts = 0
         # Arm: hold the pose found at the first step.
         self._arm_segments: list[ArmSegment] = []
         self._arm_hold: np.ndarray | None = None
@@ -485,7 +487,12 @@ class ActuatorLayer:
         # Legs.
         mode = self.leg_mode_at(now)
         if mode is not self.leg_mode:
-            log.info("leg mode", old=self.leg_mode.value, new=mode.value, t=round(now, 4))
+            if mode is LegMode.DAMPING:
+                self.leg_timeouts += 1
+                log.warning("leg commands timed out: damping", t=round(now, 4),
+                            timeouts=self.leg_timeouts)  # fmt: skip
+            else:
+                log.info("leg mode", old=self.leg_mode.value, new=mode.value, t=round(now, 4))
             self.leg_mode = mode
         tau = self._tau16
         if mode is LegMode.ACTIVE:

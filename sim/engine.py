@@ -45,6 +45,7 @@ from quadmanip.common.robot_description import (
     GRIPPER_JOINTS,
     LEG_JOINTS,
 )
+from quadmanip.common.scheduling import SchedulingConfig
 from quadmanip.sim.actuators import ActuatorConfig, ActuatorLayer, LegMode
 from quadmanip.sim.disturbance import DisturbanceChannel
 from quadmanip.sim.honesty import HonestyGuard
@@ -88,6 +89,7 @@ class NodeConfig:
     lockstep_republish_period: float = 0.2
     rtf_log_period: float = 5.0  # s (wall) between logs of the achieved real-time factor
     clock_rate: float = 100.0  # Hz of sim/clock (sim time); LowState stamps every tick
+    status_rate: float = 2.0  # Hz (wall) of sim/status: leg-command age, timeouts, RTF
 
 
 @dataclass(frozen=True)
@@ -103,6 +105,9 @@ class SimConfig:
     ground_truth: GroundTruthConfig = GroundTruthConfig()
     judge: JudgeConfig = JudgeConfig()
     node: NodeConfig = NodeConfig()
+    # The physics loop's priority; the node applies it in realtime mode only (lockstep has
+    # no deadline, and a real-time lockstep loop would starve everything else).
+    scheduling: SchedulingConfig = SchedulingConfig(policy="fifo", priority=70, fallback_nice=-5)
 
 
 @dataclass
@@ -457,7 +462,10 @@ class SimEngine:
         if self.judge is None:
             return None
         return self.judge.report(
-            self.data, trial_start=self.start_time, violations=self.honesty_violations()
+            self.data,
+            trial_start=self.start_time,
+            violations=self.honesty_violations(),
+            leg_timeouts=self.actuators.leg_timeouts,
         )
 
     def observe(self, sensors: bool = True) -> TickOutput:

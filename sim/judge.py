@@ -221,9 +221,11 @@ class Judge:
         data: mujoco.MjData,
         trial_start: float = 0.0,
         violations: Sequence[str] = (),
+        leg_timeouts: int = 0,
     ) -> JudgeReport:
         """The verdict for the state in ``data`` (body poses current) with the history
-        tracked so far; ``violations`` (the honesty guard's) make the trial invalid."""
+        tracked so far; ``violations`` (the honesty guard's) make the trial invalid;
+        ``leg_timeouts`` (the actuator layer's count) goes on the record."""
         n = len(self.names)
         t = float(data.time)
         c = self.config
@@ -293,4 +295,5 @@ class Judge:
             rest_s=rest_s,
             valid=not violations,
             violations=list(violations),
+            leg_timeouts=int(leg_timeouts),
         )

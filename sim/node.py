@@ -11,12 +11,17 @@ Threading: Zenoh callbacks only put commands into inboxes; one loop thread owns 
 (MuJoCo data and the OpenGL context), so no lock ever guards physics. Cameras render in
 that loop at their sensor ticks: deterministic, and cheap enough not to stall control.
 
+``sim/status`` (``status_rate``) tells the controller how its answers arrive: the age in
+ticks of the leg command applied at each tick, ticks that reused an old command, and the
+leg-command timeouts (legs fell back to damping), which also go into the judge's report.
+
 Modes:
 
 * ``realtime``: free-running, each tick scheduled at ``tick * dt / realtime_factor`` of
   wall time; the newest leg command is used. If the machine cannot keep up, the schedule
   is reset instead of bursting to catch up. The achieved RTF is logged every
-  ``rtf_log_period`` seconds.
+  ``rtf_log_period`` seconds. The loop runs at real-time priority where the OS allows
+  (``[scheduling]``, common/scheduling.py), as a robot's actuator loop does.
 * ``lockstep``: after publishing LowState tick k the sim waits for a LegCommand whose
   ``tick`` is k, then advances one tick (as fast as the machine allows). With no
   controller running it waits forever: it logs "waiting for leg command" every
@@ -28,12 +33,14 @@ from __future__ import annotations
 
 import argparse
 import collections
+import statistics
 import threading
 import time
 from typing import Any
 
 from quadmanip.common import messages as msg
 from quadmanip.common.robot_description import FRONT_CAMERA, GRIPPER_CAMERA
+from quadmanip.common.scheduling import SchedulingConfig
 from quadmanip.common.service import Input, Output, Service, run_service
 from quadmanip.sim.engine import SimConfig, SimEngine, TickOutput
 
@@ -65,6 +72,7 @@ class SimNode(Service):
         Output("sim/camera/front"),
         Output("sim/camera/gripper"),
         Output("sim/scan"),
+        Output("sim/status"),
         Output("sim/gt/base"),
         Output("sim/gt/objects"),
         Output("sim/gt/drawers"),
@@ -92,6 +100,11 @@ class SimNode(Service):
         self._leg_new = False
         self._inbox: collections.deque[msg.Message] = collections.deque()
         self.engine: SimEngine | None = None
+        self._link = LinkStats()
+
+    def scheduling(self) -> SchedulingConfig | None:
+        """Real-time priority for the physics loop in realtime mode only."""
+        return self.config.scheduling if self.mode == "realtime" else None
 
     # ---------------------------------------------------------------- callbacks
     def _on_leg(self, cmd: msg.LegCommand) -> None:
@@ -201,11 +214,18 @@ class SimNode(Service):
         period = eng.control_dt / rtf
         t_ref, tick_ref = time.monotonic(), eng.tick
         log_t, log_sim = time.monotonic(), eng.time
+        status_t, status_sim = time.monotonic(), eng.time
+        status_period = 1.0 / max(self.config.node.status_rate, 1e-6)
         while not self.stop_event.is_set():
             self._drain_inbox()
-            out = eng.step_tick(self._take_leg(), sensors=False)
+            leg = self._take_leg()
+            self._link.record(eng.tick, leg)
+            out = eng.step_tick(leg, sensors=False)
             self._publish(out)
             now = time.monotonic()
+            if now - status_t >= status_period:
+                self._publish_status(now - status_t, eng.time - status_sim)
+                status_t, status_sim = now, eng.time
             target = t_ref + (eng.tick - tick_ref) * period
             if target > now:
                 self.stop_event.wait(target - now)
@@ -219,14 +239,20 @@ class SimNode(Service):
         eng = self.engine
         assert eng is not None
         log_t, log_sim = time.monotonic(), eng.time
+        status_t, status_sim = log_t, log_sim
+        status_period = 1.0 / max(self.config.node.status_rate, 1e-6)
         while not self.stop_event.is_set():
             cmd = self._wait_answer(out)
             if cmd is None:
                 break
             self._drain_inbox()
+            self._link.record(eng.tick, cmd)
             out = eng.step_tick(cmd, sensors=False)
             self._publish(out)
             now = time.monotonic()
+            if now - status_t >= status_period:
+                self._publish_status(now - status_t, eng.time - status_sim)
+                status_t, status_sim = now, eng.time
             if now - log_t >= self.config.node.rtf_log_period:
                 self._log_rtf(now - log_t, eng.time - log_sim)
                 log_t, log_sim = now, eng.time
@@ -258,6 +284,18 @@ class SimNode(Service):
                     last_log = now
         return None
 
+    def _publish_status(self, wall: float, sim: float) -> None:
+        eng = self.engine
+        assert eng is not None
+        status = self._link.flush(
+            stamp=eng.time,
+            leg_timeouts=eng.actuators.leg_timeouts,
+            leg_mode=eng.actuators.leg_mode.value,
+            rtf=sim / max(wall, 1e-9),
+            mode=self.mode,
+        )
+        self.pub["sim/status"].publish(status)
+
     def _log_rtf(self, wall: float, sim: float) -> None:
         eng = self.engine
         assert eng is not None
@@ -268,11 +306,46 @@ class SimNode(Service):
             sim_time=round(eng.time, 3),
             legs=eng.actuators.leg_mode.value,
             rejected=eng.actuators.rejected,
+            leg_timeouts=eng.actuators.leg_timeouts,
         )
 
     def teardown(self) -> None:
         if self.engine is not None:
             self.engine.close()
+
+
+class LinkStats:
+    """How leg commands arrive, per status window: the age (ticks) of the command applied
+    at each tick and the ticks that got no new command (the last one is reused)."""
+
+    def __init__(self) -> None:
+        self._ages: list[int] = []
+        self._stale = 0
+        self._ticks = 0
+        self._last: msg.LegCommand | None = None
+
+    def record(self, tick: int, cmd: msg.LegCommand | None) -> None:
+        """Tick ``tick`` is about to be stepped with ``cmd`` (None: no new command)."""
+        self._ticks += 1
+        if cmd is None:
+            self._stale += 1
+            cmd = self._last
+        self._last = cmd
+        if cmd is not None:
+            self._ages.append(max(0, tick - int(cmd.tick)))
+
+    def flush(self, **fields: Any) -> msg.RobotStatus:
+        """The window's RobotStatus (``fields`` fill the rest); starts a new window."""
+        ages = self._ages
+        status = msg.RobotStatus(
+            ticks=self._ticks,
+            stale_ticks=self._stale,
+            cmd_age_p50=float(statistics.median(ages)) if ages else 0.0,
+            cmd_age_max=max(ages, default=0),
+            **fields,
+        )
+        self._ages, self._stale, self._ticks = [], 0, 0
+        return status
 
 
 def main(argv: list[str] | None = None) -> int:

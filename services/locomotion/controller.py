@@ -10,6 +10,14 @@ Modes: ``damp`` (passive damping), ``sit`` (fold the legs), ``stand`` (stand up 
 then balance on four feet with the MPC, following body pose commands) and ``walk`` (trot
 with body velocity commands). A walk command that stops arriving for `cmd_timeout` brings
 the robot to a stop and back to four-feet standing.
+
+Safety (safety.py) is checked every tick: a fall, buckling legs, a joint out of range or a
+saturated motor latches the ``safe`` phase (legs damped, ``trip_reason`` kept) and every
+command but ``damp`` and ``recover`` is refused. ``recover`` is the explicit reset: lying
+on a side, the robot rights itself (self_righting.py, phase ``righting``) and stands up;
+upright, it stands up; on its back it stays safe and says it needs help.
+``speed_scale`` (< 1 while the node's deadline monitor says degraded) shrinks the
+velocity limits: faster commands are refused, a running one is clipped.
 """
 
 from __future__ import annotations
@@ -22,14 +30,20 @@ import numpy as np
 from quadmanip.common import robot_description as rd
 from quadmanip.common.joint_layout import LEG_SLICE, N_JOINTS, N_LEG_JOINTS, N_LEGS, leg_slice
 from quadmanip.common.rotations import quat_to_mat, rpy_from_mat
+from quadmanip.common.scheduling import SchedulingConfig
 from quadmanip.services.locomotion.com_reference import ComReference, FsmParams
 from quadmanip.services.locomotion.convex_mpc import ConvexMpc, MpcParams, MpcWeights
+from quadmanip.services.locomotion.deadline import DeadlineParams
 from quadmanip.services.locomotion.gait import GaitParams, TrotGait
 from quadmanip.services.locomotion.leg_kinematics import LegKinematics
+from quadmanip.services.locomotion.safety import SafetyChecker, SafetyLimits
+from quadmanip.services.locomotion.self_righting import RecoveryParams, SelfRighting, lying_side
 from quadmanip.services.locomotion.state_estimator import EstimatorParams, StateEstimator
 from quadmanip.services.locomotion.swing_leg import SwingParams, swing_profile, touchdown_target
 
-MODES = ("damp", "sit", "stand", "walk")
+MODES = ("damp", "sit", "stand", "walk", "recover")
+# Phases whose body is carried by the MPC on its feet (tilt, height and joints checked).
+MPC_PHASES = ("balance", "walk", "stopping")
 
 
 @dataclass(frozen=True)
@@ -67,6 +81,7 @@ class NodeOptions:
     grip_effort_threshold: float = 2.0  # N of squeeze that means "holding"
     grip_min_gap: float = 0.005  # m, below this the fingers closed on nothing
     odometry_every: int = 1  # ticks between odometry messages
+    health_rate: float = 10.0  # Hz (wall) of locomotion/health; changes go out at once
 
 
 @dataclass(frozen=True)
@@ -115,7 +130,14 @@ class LocomotionConfig:
     fsm: FsmParams = field(default_factory=FsmParams)
     limits: Limits = field(default_factory=Limits)
     gains: LegGains = field(default_factory=LegGains)
+    safety: SafetyLimits = field(default_factory=SafetyLimits)
+    deadline: DeadlineParams = field(default_factory=DeadlineParams)
+    recovery: RecoveryParams = field(default_factory=RecoveryParams)
     node: NodeOptions = field(default_factory=NodeOptions)
+    # The control loop answers LowState: real-time priority where permitted (issue 12).
+    scheduling: SchedulingConfig = field(
+        default_factory=lambda: SchedulingConfig(policy="fifo", priority=80, fallback_nice=-10)
+    )
 
     def __post_init__(self) -> None:
         if self.profile not in self.profiles:
@@ -199,6 +221,14 @@ class LocomotionController:
         # Sit = the description's `lying` keyframe (the pose the robot rests in).
         description = rd.load_mujoco_model(mjcf) if mjcf is not None else None
         self.q_sit = rd.lying_joint_positions(description)[LEG_SLICE].copy()
+        self.safety = SafetyChecker(config.safety, *rd.leg_joint_limits(description))
+        self.trip_reason = ""  # why the safe phase latched ("" when not tripped)
+        self.trips = 0
+        self.speed_scale = 1.0  # velocity limits × this (the node's deadline monitor sets it)
+        self.gravity_b = np.array([0.0, 0.0, 1.0])  # world z in the base frame (IMU)
+        self._righting: SelfRighting | None = None
+        self._righting_side = "left"
+        self._righting_t0 = 0.0
         # Commands.
         self.cmd_vel = np.zeros(3)
         self.cmd_vel_time = -math.inf
@@ -242,6 +272,19 @@ class LocomotionController:
         """Request a mode: damp, sit, stand or walk."""
         if mode not in MODES:
             raise CommandError(f"unknown mode {mode!r}; expected one of {MODES}")
+        if mode == "recover":
+            self._recover()
+            return
+        if self.phase == "safe":
+            if mode == "damp":
+                return
+            raise CommandError(f"tripped ({self.trip_reason}): send mode 'recover' first")
+        if self.phase == "righting" and mode != "damp":
+            raise CommandError("righting itself: wait for it to stand, or send 'damp'")
+        if mode == "stand" and self.phase in ("damp", "sit"):
+            side = self.lying_side()
+            if side != "upright":
+                raise CommandError(f"the robot lies on its {side}: send mode 'recover'")
         if mode == self.mode:
             return
         if mode == "walk" and self.phase not in ("balance", "walk", "stopping"):
@@ -269,10 +312,10 @@ class LocomotionController:
         v = np.array([vx, vy, wz], dtype=float)
         if not np.all(np.isfinite(v)):
             raise CommandError(f"non-finite velocity command {v.tolist()}")
-        lim = self.cfg.limits
-        bound = np.array([lim.vx, lim.vy, lim.wz])
+        bound = self.velocity_bound()
         if np.any(np.abs(v) > bound + 1e-9):
-            raise CommandError(f"velocity {v.tolist()} outside limits ±{bound.tolist()}")
+            why = " (degraded: the loop cannot keep up)" if self.speed_scale < 1.0 else ""
+            raise CommandError(f"velocity {v.tolist()} outside limits ±{bound.tolist()}{why}")
         if self.phase not in ("balance", "walk", "stopping") and self.mode != "walk":
             raise CommandError(f"velocity commands need mode stand or walk (now {self.mode})")
         self.cmd_vel = v
@@ -308,6 +351,77 @@ class LocomotionController:
                 raise CommandError(f"body pose {name} out of range: {p.tolist()}")
         self.body_pose = p
 
+    def velocity_bound(self) -> np.ndarray:
+        """|vx|, |vy|, |wz| accepted now: the limits times ``speed_scale``."""
+        lim = self.cfg.limits
+        return np.array([lim.vx, lim.vy, lim.wz]) * self.speed_scale
+
+    def lying_side(self) -> str:
+        """upright, left, right or back, from the last IMU orientation."""
+        return lying_side(self.gravity_b, self.cfg.recovery)
+
+    # ------------------------------------------------------------------ safety
+    def trip(self, reason: str) -> None:
+        """Latch the safe phase (legs damped) with ``reason`` until a ``recover``."""
+        if self.phase == "safe":
+            return
+        self.phase = "safe"
+        self.mode = "damp"
+        self.trip_reason = reason
+        self.trips += 1
+        self._righting = None
+        self.cmd_vel = np.zeros(3)
+
+    def _recover(self) -> None:
+        """The explicit reset: right itself if on a side, then stand up (module doc)."""
+        if self.phase not in ("safe", "damp", "sit"):
+            return  # already up (or getting up): nothing to reset
+        side = self.lying_side()
+        if side == "back":
+            self.phase, self.mode = "safe", "damp"
+            self.trip_reason = "lying on its back: needs help (turn it over, then 'recover')"
+            return
+        self.trip_reason = ""
+        self.safety.reset()
+        self.mode = "stand"
+        if side == "upright":
+            self._start_interp("standing_up")
+            return
+        self.phase = "righting"
+        self._righting = None  # built at the next tick from the measured joints
+        self._righting_side = side
+        self._righting_t0 = self._t
+
+    def _check_safety(self, q16: np.ndarray, tau16: np.ndarray | None, r: np.ndarray) -> None:
+        if self.phase in ("damp", "safe", "righting"):
+            return
+        rpy = rpy_from_mat(r)
+        height = None
+        if self.phase in MPC_PHASES:  # the lowest foot below the trunk, along world z
+            height = float(np.max(-(r @ self.kin.foot_pos.T)[2]))
+        tau = np.zeros(N_LEG_JOINTS) if tau16 is None else np.asarray(tau16, float)[LEG_SLICE]
+        reason = self.safety.check(self._t, float(rpy[0]), float(rpy[1]), q16[LEG_SLICE], tau,
+                                   height)  # fmt: skip
+        if reason is not None:
+            self.trip(reason)
+
+    def _righting_tick(self, q16: np.ndarray, dq16: np.ndarray) -> LegOutput:
+        if self._righting is None:
+            self._righting = SelfRighting(
+                self.cfg.recovery, self._righting_side, q16[LEG_SLICE].copy(), self.q_sit
+            )
+        rt = self._righting
+        q_des, dq_des, kp, kd = rt.command(
+            self._t - self._righting_t0, q16[LEG_SLICE], dq16[LEG_SLICE], self.gravity_b
+        )
+        if rt.failed:
+            self.trip(f"self-righting failed: {rt.reason}")
+            return self._damp(q16)
+        if rt.done:
+            self._righting = None
+            self._start_interp("standing_up")
+        return LegOutput(q_des, dq_des, kp, kd, np.zeros(N_LEG_JOINTS))
+
     # ------------------------------------------------------------------ transitions
     def _start_interp(self, phase: str) -> None:
         self.phase = phase
@@ -339,16 +453,23 @@ class LocomotionController:
         quat: np.ndarray,
         gyro: np.ndarray,
         accel: np.ndarray,
+        tau16: np.ndarray | None = None,
     ) -> LegOutput:
-        """One control tick: measurements in, per-joint leg command out."""
+        """One control tick: measurements in (``tau16``: the motors' torques, for the
+        saturation check), per-joint leg command out."""
         self._t = float(t)
         self._tick += 1
         q16 = np.asarray(q16, dtype=float)
         dq16 = np.asarray(dq16, dtype=float)
         self.kin.update(q16)
         self.debug.mode = self.mode
-        if self.phase == "damp":
+        r_imu = quat_to_mat(np.asarray(quat, dtype=float))
+        self.gravity_b = r_imu[2, :].copy()
+        self._check_safety(q16, tau16, r_imu)
+        if self.phase in ("damp", "safe"):
             return self._damp(q16)
+        if self.phase == "righting":
+            return self._righting_tick(q16, dq16)
         if self.phase in ("sit", "standing_up"):
             out = self._posture(q16)
             if self.phase == "standing_up" and self._t - self._interp_t0 >= self.cfg.stand_up_time:
@@ -402,8 +523,9 @@ class LocomotionController:
             contact, progress, _ = self.gait.phase_info(t_g)
         else:
             contact, progress = np.ones(4, dtype=bool), np.full(4, -1.0)
-        # Velocity command timeout → stop.
-        cmd = self.cmd_vel.copy()
+        # Velocity command timeout → stop; a degraded loop clips what is running.
+        bound = self.velocity_bound()
+        cmd = np.clip(self.cmd_vel, -bound, bound)
         if walking and self._t - self.cmd_vel_time > cfg.cmd_timeout:
             cmd[:] = 0.0
             self._stop_requested = self._stop_requested or self._auto_walk

@@ -84,6 +84,7 @@ class ManipulationNode(Service):
     inputs = (
         Input("sim/lowstate", latest_only=True, doc="joint encoders, gripper"),
         Input("locomotion/odometry", latest_only=True, doc="body drift while working"),
+        Input("locomotion/health", latest_only=True, doc="tripped: stop and hold the arm"),
     )
     outputs = (
         Output("sim/arm_trajectory", doc="time-stamped arm trajectory + gravity feed-forward"),
@@ -103,6 +104,7 @@ class ManipulationNode(Service):
         self.pub_payload = self.publisher("locomotion/payload")
         self.state_cache = self.latest("sim/lowstate")
         self.odom_cache = self.latest("locomotion/odometry")
+        self.health_cache = self.latest("locomotion/health")
         for action in self.actions:
             # the executive arbitrates across the four actions: no per-server "busy"
             self.action_server(action, self._execute, accept=self._accept, policy="parallel")
@@ -128,7 +130,18 @@ class ManipulationNode(Service):
             base=base,
         )
 
+    def _robot_down(self) -> str:
+        """Why the arm must not move now ("" when it may): locomotion tripped (fallen,
+        overloaded) or is righting itself. The arm then holds where it is."""
+        h = self.health_cache.get()
+        if h is not None and h.state == "tripped":
+            return f"robot_down: locomotion tripped ({h.reason})"
+        return ""
+
     def _accept(self, goal: m.Message) -> tuple[bool, str]:
+        down = self._robot_down()
+        if down:
+            return False, down
         request = to_request(goal)
         if request is None:
             return False, f"invalid_goal: unsupported goal {type(goal).__name__}"
@@ -136,14 +149,21 @@ class ManipulationNode(Service):
         return verdict.accepted, verdict.reason
 
     def _execute(self, handle: GoalHandle) -> m.Message | None:
-        outcome = self.executive.execute(
-            handle.goal,
-            cancel_requested=lambda: handle.cancel_requested,
-            feedback=handle.feedback,
-        )
+        down: list[str] = []
+
+        def stop_now() -> bool:
+            if not down and (why := self._robot_down()):
+                down.append(why)
+                self.log.warning("stopping the action: the robot is down", reason=why)
+            return handle.cancel_requested or bool(down)
+
+        outcome = self.executive.execute(handle.goal, cancel_requested=stop_now,
+                                         feedback=handle.feedback)  # fmt: skip
         if outcome.status is Status.SUCCEEDED:
             return None
         if outcome.status is Status.CANCELED:
+            if down and not handle.cancel_requested:
+                raise ActionFailed(down[0])
             raise ActionCanceled(outcome.reason)
         raise ActionFailed(outcome.reason or "failed")
 

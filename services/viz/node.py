@@ -81,6 +81,7 @@ class VizNode(Service):
         Input("locomotion/odometry", latest_only=True, doc="base pose, trail"),
         Input("locomotion/debug", latest_only=True, doc="MPC, gait, forces"),
         Input("locomotion/cmd_vel", latest_only=True, doc="cmd velocity"),
+        Input("locomotion/health", doc="ok/degraded/tripped (plots, text log)"),
         Input("sim/arm_trajectory", doc="commanded arm trajectory (plots)"),
         Input("sim/gripper_command", doc="commanded finger gap (plots)"),
         Input("sim/gt/base", latest_only=True, doc="GROUND TRUTH base"),
@@ -146,6 +147,8 @@ class VizNode(Service):
         self._wire("odometry", "locomotion/odometry", self._on_odometry)
         self._wire("debug", "locomotion/debug", self._on_debug)
         self._wire("cmd_vel", "locomotion/cmd_vel", self._on_cmd_vel)
+        self._health_last: tuple[str, str] | None = None
+        self._wire("health", "locomotion/health", self._on_health)
         self._wire("arm_trajectory", "sim/arm_trajectory", self._on_arm_trajectory)
         self._wire("gripper_command", "sim/gripper_command", self._on_gripper_command)
         self._wire("gt_base", "sim/gt/base", self._on_gt_base)
@@ -323,6 +326,10 @@ class VizNode(Service):
         if not self._gt_contacts.allow(msg.stamp):
             return False
         rl.log_gt_contacts(self.rec, msg)
+        return True
+
+    def _on_health(self, msg: m.LocomotionHealth) -> bool:
+        self._health_last = rl.log_health(self.rec, msg, self._health_last)
         return True
 
     def _on_judge(self, msg: m.JudgeReport) -> bool:

@@ -561,6 +561,31 @@ _HEARTBEAT_LEVEL = {
 }
 
 
+_HEALTH_LEVEL = {"ok": "INFO", "degraded": "WARN", "tripped": "ERROR"}
+HEALTH_CODE = {"ok": 0.0, "degraded": 1.0, "tripped": 2.0}
+
+
+def log_health(
+    rec: RecordingLike, msg: m.LocomotionHealth, last: tuple[str, str] | None
+) -> tuple[str, str]:
+    """Locomotion's health: plots every time (state as 0 ok / 1 degraded / 2 tripped,
+    answer p99, command age at the robot, missed ticks), and a text line (INFO, WARN,
+    ERROR) when the state or its reason changed since ``last``; returns the new ``last``."""
+    set_time(rec, msg.stamp)
+    base = f"{PLOTS}/locomotion/health"
+    rec.log(f"{base}/state", rr.Scalars(HEALTH_CODE[msg.state]))
+    rec.log(f"{base}/answer_ms_p99", rr.Scalars(msg.answer_ms_p99))
+    rec.log(f"{base}/cmd_age_ticks", rr.Scalars(msg.cmd_age_ticks))
+    rec.log(f"{base}/missed_ticks", rr.Scalars(float(msg.missed_ticks)))
+    now = (msg.state, msg.reason)
+    if now != last:
+        text = f"locomotion {msg.state} ({msg.phase})" + (f": {msg.reason}" if msg.reason else "")
+        if not msg.upright:
+            text += " [not upright]"
+        log_text(rec, f"{LOG}/locomotion/health", msg.stamp, text, _HEALTH_LEVEL[msg.state])
+    return now
+
+
 class HeartbeatTracker:
     """Remembers each service's last heartbeat, so only news is logged: first sight, a
     state change, a sequence gap (missed beats) or a restart (seq went back)."""

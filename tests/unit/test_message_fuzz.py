@@ -200,6 +200,38 @@ def judge(draw: st.DrawFn) -> m.JudgeReport:
 
 
 @st.composite
+def health(draw: st.DrawFn) -> m.LocomotionHealth:
+    state = draw(st.sampled_from(m.HEALTH_STATES))
+    counts = st.integers(0, 1 << 40)
+    return m.LocomotionHealth(
+        stamp=draw(finite64),
+        state=state,
+        reason=draw(text) if state == "ok" else "why " + draw(text)[:200],
+        phase=draw(text)[:32],
+        upright=draw(st.booleans()),
+        max_speed=draw(st.floats(0.0, 10.0)),
+        missed_ticks=draw(counts),
+        trips=draw(counts),
+        cmd_age_ticks=draw(st.floats(0.0, 1e6)),
+    )
+
+
+@st.composite
+def robot_status(draw: st.DrawFn) -> m.RobotStatus:
+    ticks = draw(st.integers(0, 1 << 30))
+    return m.RobotStatus(
+        stamp=draw(finite64),
+        ticks=ticks,
+        stale_ticks=draw(st.integers(0, ticks)),
+        cmd_age_p50=draw(st.floats(0.0, 1e6)),
+        cmd_age_max=draw(st.integers(0, 1 << 30)),
+        leg_timeouts=draw(st.integers(0, 1 << 30)),
+        leg_mode=draw(st.sampled_from(["active", "damping"])),
+        rtf=draw(st.floats(0.0, 100.0)),
+    )
+
+
+@st.composite
 def laser_scan(draw: st.DrawFn) -> m.LaserScan:
     lo = draw(st.floats(0.0, 1e6))
     return m.LaserScan(
@@ -247,6 +279,8 @@ STRATEGIES: dict[type[Message], st.SearchStrategy] = {
     m.GroundTruthPoses: gt_poses(),
     m.GroundTruthContacts: gt_contacts(),
     m.JudgeReport: judge(),
+    m.LocomotionHealth: health(),
+    m.RobotStatus: robot_status(),
 }
 
 # Messages that may ride inside ActionGoal.goal / ActionResult.result in the fuzz (no

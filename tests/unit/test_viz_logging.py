@@ -154,6 +154,28 @@ def test_locomotion_debug(recording: Recording) -> None:
     np.testing.assert_allclose(np.array(strip[0]), pred, atol=1e-6)
 
 
+def test_locomotion_health_plots_always_and_logs_changes(recording: Recording) -> None:
+    ok = m.LocomotionHealth(stamp=1.0, state="ok", phase="balance", answer_ms_p99=0.8)
+    late = m.LocomotionHealth(
+        stamp=2.0, state="degraded", reason="cannot keep up: 30 of 500 ticks missed",
+        phase="walk", missed_ticks=30, cmd_age_ticks=2.5,
+    )  # fmt: skip
+    fell = m.LocomotionHealth(
+        stamp=3.0, state="tripped", reason="roll 40° beyond ±34°", phase="safe", upright=False
+    )
+    last = None
+    for msg in (ok, ok, late, fell):
+        last = rl.log_health(recording.rec, msg, last)
+    rows = recording.read()
+    states = [r["Scalars:scalars"][0] for r in rows["/plots/locomotion/health/state"]]
+    assert states == [0.0, 0.0, 1.0, 2.0]
+    assert rows["/plots/locomotion/health/missed_ticks"][-2]["Scalars:scalars"] == [30.0]
+    lines = rows["/log/locomotion/health"]
+    assert [r["TextLog:level"] for r in lines] == [["INFO"], ["WARN"], ["ERROR"]]  # no repeat
+    assert "ticks missed" in lines[1]["TextLog:text"][0]
+    assert lines[2]["TextLog:text"][0].endswith("roll 40° beyond ±34° [not upright]")
+
+
 # --------------------------------------------------------------------------- sensors
 
 
