@@ -47,10 +47,11 @@ from typing import Any
 import numpy as np
 from quadmanip.common import messages as m
 from quadmanip.common.bus import Bus, BusConfig
-from quadmanip.common.rotations import quat_to_mat
+from quadmanip.common.rotations import quat_to_mat, yaw_from_quat
 from quadmanip.launcher import Launcher, free_endpoint
 from quadmanip.services.locomotion.controller import load_locomotion_config
 from quadmanip.sim.scenarios import Scenario, save_scenario_file
+from quadmanip.testbench.self_righting_trials import toppling_push
 
 FALL_TILT_DEG = 10.0  # the issue's "no fall": roll and pitch within 10°...
 FALL_HEIGHT_M = 0.25  # ... and the trunk above 0.25 m
@@ -304,14 +305,6 @@ def run_load(seed: int, busy: int, load_s: float, schedule: str | None, log: Any
 
 
 # --------------------------------------------------------------------------- falls
-def push_for(side: str, k: int, rng: np.random.Generator) -> m.Disturbance:
-    """A push that topples the robot onto ``side`` (varied per trial): a lateral force
-    with a roll torque on the trunk, the numbers from docs/locomotion.md."""
-    from quadmanip.testbench.self_righting_trials import toppling_push
-
-    return toppling_push(side, rng)
-
-
 def run_falls(seed: int, per_side: int, log: Any) -> list[dict]:
     """``per_side`` push → detect → recover trials to each side (module doc)."""
     sim_args = ["--lockstep", "--scenario", "empty", "--set", "allow_test_disturbance=true",
@@ -329,7 +322,7 @@ def run_falls(seed: int, per_side: int, log: Any) -> list[dict]:
             if stack is None:
                 stack = RobotStack(sim_args, _loco_args(None), log).__enter__()
                 stack.wait_standing()
-            trial = _fall_trial(stack, side, k, rng, limits)
+            trial = _fall_trial(stack, side, rng, limits)
             trials.append(trial)
             _say(f"fall {k + 1}/{len(sides)} to the {side}: detect "
                  f"{trial['fall_detect_s']} s, safe {trial['safe']}, righted "
@@ -343,13 +336,16 @@ def run_falls(seed: int, per_side: int, log: Any) -> list[dict]:
     return trials
 
 
-def _fall_trial(st: RobotStack, side: str, k: int, rng: np.random.Generator, limits: Any) -> dict:
+def _fall_trial(st: RobotStack, side: str, rng: np.random.Generator, limits: Any) -> dict:
     with st.lock:
         n_health = len(st.health)
     t_push = st.now()
-    push = push_for(side, k, rng)
-    st.pub_push.publish(m.Disturbance(stamp=t_push, force=push.force, torque=push.torque,
-                                      duration=push.duration, body="base"))  # fmt: skip
+    b = st.base()
+    assert b is not None
+    # The test aims its push with the true heading (self_righting_trials.py's pushes,
+    # varied per trial); the robot never sees it.
+    push = toppling_push(side, rng, yaw=yaw_from_quat(b[2]), stamp=t_push)
+    st.pub_push.publish(push)
     trial: dict[str, Any] = {"side": side, "push_force": push.force.tolist(),
                              "push_torque": push.torque.tolist(), "duration": push.duration,
                              "fall_detect_s": None, "safe": False, "righted": False,

@@ -16,8 +16,11 @@ saturated motor latches the ``safe`` phase (legs damped, ``trip_reason`` kept) a
 command but ``damp`` and ``recover`` is refused. ``recover`` is the explicit reset: lying
 on a side, the robot rights itself (self_righting.py, phase ``righting``) and stands up;
 upright, it stands up; on its back it stays safe and says it needs help.
-``speed_scale`` (< 1 while the node's deadline monitor says degraded) shrinks the
-velocity limits: faster commands are refused, a running one is clipped.
+``degraded`` (set by the node while its deadline monitor says the loop cannot keep up)
+comes with ``speed_scale`` < 1, which shrinks the velocity limits (faster commands are
+refused, a running one is clipped; at 0 the robot stops and stands), and it stiffens the standing legs at the joint level: a PD on the joints runs in the actuator
+layer at its own rate, so it holds the stance even when the MPC's forces arrive late
+(without it, standing under a load that delayed answers by 20 ms toppled the robot).
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ from quadmanip.common.joint_layout import LEG_SLICE, N_JOINTS, N_LEG_JOINTS, N_L
 from quadmanip.common.rotations import quat_to_mat, rpy_from_mat
 from quadmanip.common.scheduling import SchedulingConfig
 from quadmanip.services.locomotion.com_reference import ComReference, FsmParams
-from quadmanip.services.locomotion.convex_mpc import ConvexMpc, MpcParams, MpcWeights
+from quadmanip.services.locomotion.convex_mpc import GRAVITY, ConvexMpc, MpcParams, MpcWeights
 from quadmanip.services.locomotion.deadline import DeadlineParams
 from quadmanip.services.locomotion.gait import GaitParams, TrotGait
 from quadmanip.services.locomotion.leg_kinematics import LegKinematics
@@ -224,7 +227,9 @@ class LocomotionController:
         self.safety = SafetyChecker(config.safety, *rd.leg_joint_limits(description))
         self.trip_reason = ""  # why the safe phase latched ("" when not tripped)
         self.trips = 0
-        self.speed_scale = 1.0  # velocity limits × this (the node's deadline monitor sets it)
+        self.degraded = False  # the node's deadline monitor: the loop cannot keep up
+        self.speed_scale = 1.0  # ... and the share of the velocity limits it can track
+        self._q_hold: np.ndarray | None = None  # degraded stance: joint-level hold target
         self.gravity_b = np.array([0.0, 0.0, 1.0])  # world z in the base frame (IMU)
         self._righting: SelfRighting | None = None
         self._righting_side = "left"
@@ -314,7 +319,7 @@ class LocomotionController:
             raise CommandError(f"non-finite velocity command {v.tolist()}")
         bound = self.velocity_bound()
         if np.any(np.abs(v) > bound + 1e-9):
-            why = " (degraded: the loop cannot keep up)" if self.speed_scale < 1.0 else ""
+            why = " (degraded: the loop cannot keep up)" if self.degraded else ""
             raise CommandError(f"velocity {v.tolist()} outside limits ±{bound.tolist()}{why}")
         if self.phase not in ("balance", "walk", "stopping") and self.mode != "walk":
             raise CommandError(f"velocity commands need mode stand or walk (now {self.mode})")
@@ -352,7 +357,7 @@ class LocomotionController:
         self.body_pose = p
 
     def velocity_bound(self) -> np.ndarray:
-        """|vx|, |vy|, |wz| accepted now: the limits times ``speed_scale``."""
+        """|vx|, |vy|, |wz| accepted now: the limits, scaled down while degraded."""
         lim = self.cfg.limits
         return np.array([lim.vx, lim.vy, lim.wz]) * self.speed_scale
 
@@ -526,6 +531,8 @@ class LocomotionController:
         # Velocity command timeout → stop; a degraded loop clips what is running.
         bound = self.velocity_bound()
         cmd = np.clip(self.cmd_vel, -bound, bound)
+        if walking and not np.any(bound > 0.0):
+            self._stop_requested = True  # too late to trot at all: stop and stand
         if walking and self._t - self.cmd_vel_time > cfg.cmd_timeout:
             cmd[:] = 0.0
             self._stop_requested = self._stop_requested or self._auto_walk
@@ -641,7 +648,29 @@ class LocomotionController:
         self.debug.gait_phase = np.where(progress >= 0, progress, 0.0)
         self.debug.contact = contact.copy()
         self.debug.foot_forces = self._forces_world.copy()
-        return LegOutput(q_des, dq_des, np.zeros(N_LEG_JOINTS), kd, tau)
+        kp = np.zeros(N_LEG_JOINTS)
+        if self.degraded and not walking:
+            q_des, kp, kd = self._degraded_stance(q16[LEG_SLICE], kd)
+            # The MPC's forces answer a state that is stale by now: carry the weight with
+            # a static share per foot instead, and let the joint PD do the balancing.
+            share = np.zeros((4, 3))
+            share[:, 2] = self._inertia.mass * GRAVITY / 4.0
+            tau = self.kin.leg_torques((r.T @ share.T).T)
+        else:
+            self._q_hold = None
+        return LegOutput(q_des, dq_des, kp, kd, tau)
+
+    def _degraded_stance(
+        self, q12: np.ndarray, kd: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Joint-level stiffness for a late loop (module doc): hold the joints where they
+        were when the loop fell behind (following the measured joints would let the
+        stance sag away under gravity)."""
+        d = self.cfg.deadline
+        if self._q_hold is None:
+            self._q_hold = q12.copy()
+        kp = np.full(N_LEG_JOINTS, d.degraded_kp)
+        return self._q_hold.copy(), kp, np.maximum(kd, d.degraded_kd)
 
     def _run_mpc(
         self,

@@ -20,7 +20,11 @@ answers and MPC overruns are still counted there but never degrade.
 
 Any of them beyond its limit turns the state ``degraded`` (with the reason); the
 controller then accepts only ``degraded_speed_scale`` of its velocity limits (slower
-steps need less precise timing, and a stop is short). ``recover_time`` of clean windows
+steps need less precise timing, and a stop is short) and stands with joint-level
+stiffness (``degraded_kp``/``degraded_kd``) that does not depend on answering in time.
+When even that is too late for a trot (the window's p99 answer beyond ``no_walk_late``:
+a swing leg placed 4 ticks late lands somewhere else), walking is refused altogether until
+the loop is back on time; the robot stops and stands. ``recover_time`` of clean windows
 turns it back to ``ok``. The tripped state (safety.py) is the controller's, not this.
 """
 
@@ -43,6 +47,9 @@ class DeadlineParams:
     max_cmd_age_ticks: float = 2.0  # median age of the applied command (robot side)
     recover_time: float = 5.0  # s of clean windows before degraded → ok
     degraded_speed_scale: float = 0.5  # velocity limits × this while degraded
+    no_walk_late: float = 0.008  # s: answers this late (window p99) cannot carry a trot at all
+    degraded_kp: float = 40.0  # N m/rad, joint-level stance stiffness while degraded
+    degraded_kd: float = 1.0  # N m s/rad
 
     def __post_init__(self) -> None:
         if self.answer_budget <= 0.0 or self.window <= 0.0 or self.recover_time < 0.0:
@@ -161,5 +168,8 @@ class DeadlineMonitor:
 
     @property
     def speed_scale(self) -> float:
-        """Factor on the velocity limits now (1 when ok)."""
-        return self.p.degraded_speed_scale if self.state == "degraded" else 1.0
+        """Factor on the velocity limits now: 1 when ok, ``degraded_speed_scale`` when
+        degraded, 0 (no walking) when the last window's answers were too late to trot."""
+        if self.state != "degraded":
+            return 1.0
+        return 0.0 if self.answer_p99 > self.p.no_walk_late else self.p.degraded_speed_scale

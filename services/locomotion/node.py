@@ -237,6 +237,7 @@ class LocomotionNode(Service):
                                  speed_scale=self.deadline.speed_scale)  # fmt: skip
             else:
                 self.log.info("deadline ok again: full speed limits", t=round(stamp, 3))
+        ctl.degraded = self.deadline.state == "degraded"
         ctl.speed_scale = self.deadline.speed_scale
         self._publish_health(stamp)
 

@@ -5,39 +5,50 @@ Plain algorithm, no transport. :func:`lying_side` tells from the IMU how the rob
 until the robot rests on its belly in the description's ``lying`` pose, from which the
 locomotion controller's ``stand`` mode stands up.
 
-Why this sequence (the idea of the recovery stands of Unitree's and MIT's Cheetah robots,
-fitted to this robot's small abduction range of +-0.8 rad and the arm on its back):
+Why this sequence. Like the recovery stands of Unitree's and MIT's Cheetah robots it folds
+the legs and rolls the trunk with the legs on the floor side, but fitted to this robot: its
+abduction range is only +-0.8 rad (a Cheetah pushes itself over with its abduction alone)
+and the arm sits on its back. Pushed over, the robot rests rolled 113-136 deg (on its side,
+leaning back on the arm), or propped at ~45 deg on its folded floor-side legs; it does not
+come to rest on its back (the arm tips it onto a side).
 
-1. ``tuck``: the upper legs fold into the lying pose (they will land under the belly),
-   the legs on the ground side abduct away from the ground and fold their knees, so they
-   come free of the floor.
-2. ``sweep``: the ground-side legs swing their hips over to the *back* side of the trunk
-   (hip ~2.9 rad). Abducted as in 1, a leg that points to the back now presses into the
-   floor: the same abduction that lifted it on the belly side pushes down on the back side.
-3. ``push``: those legs extend their knees (the strongest joints), levering the back of
-   the trunk off the floor about the belly-side edge. The trunk tips over that edge once
-   its centre of mass passes it, about 13 deg past lying flat on the side, far less than
-   the ~45 deg the lever reaches, and falls onto its belly, landing on the folded upper
-   legs. The arm on the back only ever moves away from the floor in this roll; rolling the
-   other way, over the back, is what it would block.
-4. ``unlever`` / ``fold``: once the IMU shows the trunk near level, the lever legs bring
-   their abduction back to zero and refold (in that order, so no calf sweeps through the
-   trunk), then all legs go to the ``lying`` pose.
-5. ``settle``: done when the trunk is level, the legs are at the lying pose and still.
+1. ``tuck``: the upper legs fold into the lying pose (the trunk will land on them); the
+   floor-side legs fold their knees with their plane of motion tilted off the floor (see
+   3).
+2. ``lower`` (only when propped on its legs, side roll below ``lean_max_roll``): the
+   floor-side legs are what props it, and no leg can lift that side: they fold, slowly, and
+   the trunk comes down onto its side; then ``tuck`` again.
+3. ``turn`` / ``sweep``: the rear floor-side leg (the lever) swings its hip over to the
+   *back* of the trunk (hip 2.6 rad: up and back, behind the arm's elbow). A leg's
+   abduction ``a`` tilts its plane of motion about the trunk's long axis; at
+   ``a = roll - 90 deg`` that plane is parallel to the floor, so with ``clear_angle`` more
+   the leg crosses to the back without touching the floor. (Pressing a foot down near the
+   belly-side edge would roll the trunk over the arm instead.) The front floor-side leg
+   stays tucked: reaching over the back it would catch the trunk's edge and the gripper.
+4. ``push``: the plane tilts ``dig_angle`` into the floor and the knee (the strongest
+   joint) stretches: the foot presses the floor behind the trunk, beyond its centre of
+   mass, and levers the back up about the belly-side edge. Past ~77 deg of roll the trunk
+   tips over that edge by itself and falls onto its belly, onto the folded upper legs. The
+   abduction follows the measured roll all along, so the same motion works from lying flat
+   on the side and from leaning back on the arm. The arm only ever rises in this roll.
+5. ``unlever`` / ``fold``: once the IMU shows the trunk near level (``rolled_tilt``), the
+   lever legs bring their abduction back to zero and refold (in that order, so no calf
+   sweeps through the trunk), then all legs go to the ``lying`` pose.
+6. ``settle``: done when the trunk is level (``done_tilt``), the legs are at the lying
+   pose and still.
 
-If the trunk did not roll (a push that slipped), the sequence starts again from 1, up to
-``max_attempts`` times. It fails on a timeout, after too many attempts, or when the robot
-ends on its back (``lying_side`` says "back"; then it needs help: nothing here can roll it
-over the arm).
+If the trunk did not roll, or fell back onto a side, the sequence starts again from the
+side it lies on, up to ``max_attempts`` times. It fails after too many attempts, on a
+``timeout``, or when it ends on its back (``lying_side`` says "back": it needs help).
 
 Conventions: ``gravity_base`` is the unit gravity axis in the base frame as the IMU gives
 it: world +z expressed in the base frame, ``R[2, :]`` for the base orientation ``R``
 (:func:`gravity_in_base`; the direction an accelerometer at rest measures, pointing away
 from the floor). It is (0, 0, 1) when level, (0, -1, 0) when lying on the **left** side
 (the base's +y axis, its left, points down), (0, +1, 0) on the **right** side and
-(0, 0, -1) upside down on the back. The joint targets stay inside the description's joint
-ranges (less a margin), and the position
-error is clipped so that ``kp * error`` never asks for more than a motor's torque limit.
+(0, 0, -1) upside down on the back. Joint targets stay inside the description's joint
+ranges (less ``joint_margin``), and the position error is clipped so that ``kp * error``
+never asks a motor for more than its torque limit (both read from the MuJoCo model).
 """
 
 from __future__ import annotations
@@ -51,6 +62,7 @@ from quadmanip.common.joint_layout import LEG_JOINTS, N_LEG_JOINTS, N_LEGS, leg_
 from quadmanip.common.rotations import quat_to_mat
 
 SIDES = ("upright", "left", "right", "back")
+"""What :func:`lying_side` returns."""
 
 
 @dataclass(frozen=True)
@@ -58,23 +70,28 @@ class RecoveryParams:
     """Tuning of the self-righting sequence ([recovery] table). Angles in rad, times in s."""
 
     # Side detection from the gravity direction in the base frame.
-    upright_tilt: float = 0.52  # tilt from level at or below which the robot is "upright" (30 deg)
-    back_tilt: float = 0.70  # base's -z within this of world up: on its "back" (40 deg)
+    upright_tilt: float = 0.35  # tilt from level at or below which it is "upright" (20 deg)
+    back_tilt: float = 0.52  # base's -z within this of world up: on its "back" (30 deg)
     # Joint-space PD.
     kp: float = 60.0  # N m/rad
     kd: float = 2.0  # N m s/rad
-    kp_push: float = 80.0  # on the lever legs while they sweep and push
+    kp_push: float = 80.0  # on the lever leg from turn to the end of the push
     kd_push: float = 2.0
     joint_margin: float = 0.05  # rad kept from each joint-range end
     # Lever pose of the ground-side legs (abduction magnitude; its sign follows the side).
     lever_abad: float = 0.75  # largest abduction used
-    lever_hip: float = 2.9  # hip angle that points a leg to the back
+    lever_hip: float = 2.6  # hip angle that points the lever leg up and back
     clear_angle: float = 0.2  # lever leg above the floor line while it swings over
     dig_angle: float = 0.6  # lever leg below the floor line when it pushes
-    tuck_knee: float = -2.6
-    push_knee: float = -0.7
+    # Propped on its ground-side legs (rolled less than lean_max_roll): first lowered
+    # onto its side by those legs, slowly, so it does not roll on over its back.
+    lean_max_roll: float = 1.22  # rad (70 deg)
+    tuck_knee: float = -2.6  # knee folded while the legs move
+    sweep_knee: float = -2.6  # knee while the lever legs swing over the back
+    push_knee: float = -0.7  # knee stretched to push
     # Durations of the moves (smoothstep interpolation).
     t_tuck: float = 0.5
+    t_lower: float = 1.0
     t_turn: float = 0.3
     t_sweep: float = 0.4
     t_push: float = 0.6
@@ -91,6 +108,20 @@ class RecoveryParams:
     max_attempts: int = 2
     timeout: float = 8.0  # s for the whole sequence
 
+    def __post_init__(self) -> None:
+        times = (self.t_tuck, self.t_lower, self.t_turn, self.t_sweep, self.t_push,
+                 self.t_hold, self.t_unlever, self.t_fold, self.t_settle, self.timeout)  # fmt: skip
+        if min(times) <= 0.0:
+            raise ValueError("recovery durations and timeout must be > 0")
+        if min(self.kp, self.kd, self.kp_push, self.kd_push) <= 0.0:
+            raise ValueError("recovery gains must be > 0")
+        if not 0.0 < self.done_tilt < self.upright_tilt < math.pi - self.back_tilt:
+            raise ValueError("recovery tilts: need 0 < done_tilt < upright_tilt < pi - back_tilt")
+        if not self.done_tilt < self.rolled_tilt < self.relapse_tilt < math.pi / 2:
+            raise ValueError("recovery tilts: need done_tilt < rolled_tilt < relapse_tilt < pi/2")
+        if not 0.0 < self.lever_abad < math.pi / 2 or self.max_attempts < 1:
+            raise ValueError("recovery lever_abad must be in (0, pi/2), max_attempts >= 1")
+
 
 def gravity_in_base(quat: np.ndarray) -> np.ndarray:
     """``gravity_base`` from the IMU quaternion [w, x, y, z]: world +z in the base frame."""
@@ -104,7 +135,7 @@ def tilt_angle(gravity_base: np.ndarray) -> float:
 
 
 def lying_side(gravity_base: np.ndarray, params: RecoveryParams) -> str:
-    """How the robot lies: "upright", "left", "right" or "back".
+    """How the robot lies: one of :data:`SIDES`, "upright", "left", "right" or "back".
 
     ``gravity_base``: world +z in the base frame, ``R[2, :]`` (module doc). "upright" (on
     its feet or belly) when the tilt is at most ``upright_tilt``; "back" when the base's -z
@@ -173,6 +204,7 @@ class SelfRighting:
         self.attempts = 1
         self.reason = ""
         self.roll = math.nan  # last side roll (rad), for logs
+        self._lowered = False  # lowered from propped on its legs onto its side already
         self._t0 = 0.0  # start time of the current phase
         self._from = np.clip(q_start, lo, hi)  # where the current move starts
         self._last = self._from.copy()  # the last commanded target (start of the next move)
@@ -190,13 +222,15 @@ class SelfRighting:
 
     def _set_side(self, side: str) -> None:
         self.side = side
-        # Legs on the ground side: the left legs (FL, RL) when lying on the left side.
+        # Legs on the ground side: the left legs (FL, RL) when lying on the left side; the
+        # rear one is the lever (the front one, reaching over the back, would catch the
+        # trunk's edge and the gripper that lies there).
         first = 0 if side == "left" else 1
         self.ground_legs = (first, first + 2)
+        self.lever_leg = first + 2
         self.top_legs = tuple(i for i in range(N_LEGS) if i not in self.ground_legs)
         self._lever_mask = np.zeros(N_LEG_JOINTS, dtype=bool)
-        for i in self.ground_legs:
-            self._lever_mask[leg_slice(i)] = True
+        self._lever_mask[leg_slice(self.lever_leg)] = True
         # The abduction angles below are written for the left legs lying on the left side;
         # the right legs on the right side mirror them (abduction axes are both +x).
         self._abad_sign = 1.0 if side == "left" else -1.0
@@ -217,28 +251,32 @@ class SelfRighting:
         A ground-side leg's abduction ``a`` tilts its plane of motion (the hip and knee
         plane) by ``a`` about the trunk's long axis; at ``a = psi - pi/2`` that plane is
         parallel to the floor, whether the trunk lies flat (psi = pi/2) or leans back on
-        the arm (psi ~ 2.3). Around that angle the lever legs tilt their plane up
-        (``clear_angle``) while they swing from the belly side to the back, so they touch
-        nothing, then down (``dig_angle``) to plant their feet on the floor behind the
+        the arm (psi ~ 2.3). Around that angle the lever leg tilts its plane up
+        (``clear_angle``) while it swings from the belly side to the back, so it touches
+        nothing, then down (``dig_angle``) to plant its foot on the floor behind the
         trunk and push it over. Angles are for the left legs on the left side; the right
         legs mirror them.
         """
         p = self.params
         q = self.q_lying.copy()
         if self.phase in ("unlever", "fold", "settle", "done", "failed"):
-            if self.phase == "unlever":
+            if self.phase == "unlever":  # keep the hip where it was
                 for i in self.ground_legs:
-                    q[leg_slice(i)] = (0.0, p.lever_hip, p.tuck_knee)
+                    s = leg_slice(i)
+                    q[s] = (0.0, self._from[s][1], p.tuck_knee)
             return q
         level = psi - math.pi / 2.0
         for i in self.ground_legs:
             s = leg_slice(i)
-            if self.phase == "tuck":  # folded, pointing to the belly: plane tilted up
+            if self.phase == "tuck" or (i != self.lever_leg and self.phase != "lower"):
+                # Folded, pointing to the belly, its plane tilted off the floor.
                 q[s] = (level - p.clear_angle, q[s][1], p.tuck_knee)
+            elif self.phase == "lower":  # the lying pose's leg, folded: the trunk comes down
+                q[s] = (0.0, q[s][1], p.tuck_knee)
             elif self.phase == "turn":  # pointing backwards: plane tilted up on the back side
                 q[s] = (level + p.clear_angle, 0.5 * math.pi, p.tuck_knee)
             elif self.phase == "sweep":
-                q[s] = (level + p.clear_angle, p.lever_hip, p.tuck_knee)
+                q[s] = (level + p.clear_angle, p.lever_hip, p.sweep_knee)
             else:  # push, hold: plane tilted into the floor, knee stretched
                 q[s] = (level - p.dig_angle, p.lever_hip, p.push_knee)
             q[s.start] = self._abad_sign * min(max(q[s.start], -p.lever_abad), p.lever_abad)
@@ -258,11 +296,13 @@ class SelfRighting:
         kd = np.full(N_LEG_JOINTS, p.kd)
         if self.phase == "failed":
             # Give up limp: damping only, as the controller's damp mode.
-            return q12.copy(), np.zeros(N_LEG_JOINTS), np.zeros(N_LEG_JOINTS), kd
+            q_hold = np.clip(q12, self._lo, self._hi)  # no stiffness: only kept in range
+            return q_hold, np.zeros(N_LEG_JOINTS), np.zeros(N_LEG_JOINTS), kd
         self.roll = side_roll(g, self.side)
         target = self._target(self.roll)
         dur = {
             "tuck": p.t_tuck,
+            "lower": p.t_lower,
             "turn": p.t_turn,
             "sweep": p.t_sweep,
             "push": p.t_push,
@@ -297,11 +337,18 @@ class SelfRighting:
         side = lying_side(g, p)
         tilt = tilt_angle(g)
         elapsed = t - self._t0
-        if self.phase in ("tuck", "turn", "sweep", "push", "hold"):
+        if self.phase in ("tuck", "lower", "turn", "sweep", "push", "hold"):
             if tilt < p.rolled_tilt:
                 self._go("unlever", t)
             elif self.phase == "tuck" and elapsed >= p.t_tuck:
-                self._go("turn", t)
+                # Propped on its legs: lower it onto its side first (once), then lever.
+                if side_roll(g, self.side) < p.lean_max_roll and not self._lowered:
+                    self._lowered = True
+                    self._go("lower", t)
+                else:
+                    self._go("turn", t)
+            elif self.phase == "lower" and elapsed >= p.t_lower:
+                self._go("tuck", t)
             elif self.phase == "turn" and elapsed >= p.t_turn:
                 self._go("sweep", t)
             elif self.phase == "sweep" and elapsed >= p.t_sweep:

@@ -123,6 +123,7 @@ def test_starts_in_damping_and_times_out_after_50ms(layer):
     d.qvel[act.legs.dof] = dq
     act.apply(d)
     assert act.leg_mode is LegMode.DAMPING
+    assert act.leg_timeouts == 0  # damping before any command is not a timeout
     np.testing.assert_allclose(d.ctrl[act.legs.act], -2.0 * dq)
     assert act.set_leg_command(d.time, *_leg_cmd(ff=1.5))
     step = m.opt.timestep
@@ -139,6 +140,9 @@ def test_starts_in_damping_and_times_out_after_50ms(layer):
     assert n_active == 51
     assert d.time == pytest.approx(0.051, abs=1e-9)
     np.testing.assert_allclose(d.ctrl[act.legs.act], -2.0 * dq)
+    assert act.leg_timeouts == 1
+    act.apply(d)
+    assert act.leg_timeouts == 1  # counted once per timeout, not per step
     # A fresh command brings it back.
     assert act.set_leg_command(d.time, *_leg_cmd(ff=-1.0))
     act.apply(d)
