@@ -265,11 +265,15 @@ def run_load(seed: int, busy: int, load_s: float, schedule: str | None, log: Any
             st.wait_sim(t1 + 2.0)
             samples = st.window(t0, t1 + 2.0)
             heights = [g[1][2] for g in samples]
+            xy = np.array([g[1][:2] for g in samples]) if samples else np.zeros((0, 2))
+            path_m = (
+                float(np.sum(np.linalg.norm(np.diff(xy, axis=0), axis=1))) if len(xy) > 1 else 0.0
+            )
             tilts = [tilt_deg(g[2]) for g in samples]
             with st.lock:
                 health = st.health[n_health:]
                 status = st.status[n_status:]
-            fell = bool(samples) and (min(heights) < FALL_HEIGHT_M or max(tilts) > FALL_TILT_DEG)
+            fell = bool(samples and (min(heights) < FALL_HEIGHT_M or max(tilts) > FALL_TILT_DEG))
             states = sorted({h.state for h in health})
             first_h = st.health[n_health - 1] if n_health else None
             last_h = health[-1] if health else None
@@ -293,11 +297,15 @@ def run_load(seed: int, busy: int, load_s: float, schedule: str | None, log: Any
                 "late_answers": (last_h.late_answers - (first_h.late_answers if first_h else 0))
                 if last_h else None,
                 "answer_ms_p99_max": max((h.answer_ms_p99 for h in health), default=None),
+                "path_m": path_m,  # ground-truth distance walked (trot: ~0.3 m/s x time)
+                "rejected_commands": (last_h.rejected_commands
+                                      - (first_h.rejected_commands if first_h else 0))
+                if last_h else None,
             }  # fmt: skip
             _say(f"seed {seed} {kind} under {busy} busy: fell={fell} "
                  f"min z {out[kind]['min_height_m']:.3f} m, max tilt "
                  f"{out[kind]['max_tilt_deg']:.1f}°, timeouts {out[kind]['leg_timeouts']}, "
-                 f"health {states}, rtf {out[kind]['rtf']:.2f}")  # fmt: skip
+                 f"health {states}, walked {path_m:.1f} m, rtf {out[kind]['rtf']:.2f}")  # fmt: skip
             if fell:
                 break  # the trot cannot start from the floor
     tmp.cleanup()
@@ -446,6 +454,7 @@ def main(argv: list[str]) -> int:
         "load_max_tilt_deg": max((p["max_tilt_deg"] for p in parts), default=None),
         "leg_timeouts_under_load": sum(p["leg_timeouts"] for p in parts) if parts else None,
         "load_degraded": any("degraded" in p["health_states"] for p in parts) if parts else None,
+        "load_trot_path_m": [r["trot"]["path_m"] for r in loads if "trot" in r],
         "load_scheduling": sorted({r.get("scheduling", "") for r in loads}),
         "fall_detect_s_p50": statistics.median(detects) if detects else None,
         "fall_detect_s_max": max(detects) if detects else None,

@@ -141,6 +141,19 @@ def test_missed_ticks_degrade_then_clean_windows_recover():
     assert mon.speed_scale == 1.0
 
 
+def test_too_late_to_walk_holds_for_the_whole_degraded_episode():
+    p = DeadlineParams(answer_budget=0.003, no_walk_late=0.008, recover_time=2.0)
+    mon = DeadlineMonitor(p)
+    changes, t, tick = run(mon, 0.0, 1.0, answer_s=0.005)  # late, but a trot is possible
+    assert mon.state == "degraded" and mon.speed_scale == p.degraded_speed_scale
+    _, t, tick = run(mon, t, 0.5, answer_s=0.012, tick0=tick)  # too late to trot
+    assert mon.speed_scale == 0.0
+    _, t, tick = run(mon, t, 1.0, answer_s=0.005, tick0=tick)  # better, still degraded
+    assert mon.state == "degraded" and mon.speed_scale == 0.0  # no flapping back
+    changes, t, tick = run(mon, t, 4.0, tick0=tick)
+    assert changes[-1][1] == "ok" and mon.speed_scale == 1.0
+
+
 def test_late_answers_degrade_only_when_the_robot_does_not_wait():
     p = DeadlineParams(answer_budget=0.003)
     mon = DeadlineMonitor(p)
@@ -173,3 +186,97 @@ def test_deadline_params_are_checked():
     with pytest.raises(ValueError):
         DeadlineParams(window=0.0)
     assert math.isclose(DeadlineParams().answer_budget, 0.003)
+
+
+# ----------------------------------------------------------------------------- controller
+# The controller's latch and reset, driven with scripted measurements (no physics).
+from quadmanip.common.joint_layout import LEG_SLICE, N_JOINTS  # noqa: E402
+from quadmanip.services.locomotion.controller import (  # noqa: E402
+    CommandError,
+    LocomotionController,
+    load_locomotion_config,
+)
+
+LEVEL = np.array([1.0, 0.0, 0.0, 0.0])
+
+
+def _quat_roll(angle: float) -> np.ndarray:
+    return np.array([math.cos(angle / 2), math.sin(angle / 2), 0.0, 0.0])
+
+
+def _balancing() -> tuple[LocomotionController, np.ndarray, float]:
+    """A controller in its balance phase (stand-up run on scripted, stand-pose joints)."""
+    ctl = LocomotionController(load_locomotion_config())
+    q = np.zeros(N_JOINTS)
+    q[LEG_SLICE] = ctl.q_stand
+    ctl.set_mode("stand")
+    t = 0.0
+    while ctl.phase != "balance":
+        t += 0.002
+        ctl.step(t, q, np.zeros(N_JOINTS), LEVEL, np.zeros(3), np.array([0, 0, 9.81]))
+    return ctl, q, t
+
+
+def _tick(ctl: LocomotionController, q: np.ndarray, t: float, quat: np.ndarray) -> None:
+    ctl.step(t, q, np.zeros(N_JOINTS), quat, np.zeros(3), np.array([0, 0, 9.81]))
+
+
+def test_a_fall_latches_safe_mode_until_recover():
+    ctl, q, t = _balancing()
+    _tick(ctl, q, t + 0.002, _quat_roll(0.5))
+    assert ctl.phase == "balance"  # 29°: within the limit
+    out = ctl.step(t + 0.004, q, np.ones(N_JOINTS), _quat_roll(0.7), np.zeros(3), np.zeros(3))
+    assert ctl.phase == "safe" and ctl.trips == 1 and ctl.trip_reason.startswith("roll 40°")
+    np.testing.assert_allclose(out.kp, 0.0)  # legs damped
+    assert np.all(out.kd > 0)
+    for mode in ("stand", "walk", "sit"):
+        with pytest.raises(CommandError, match="recover"):
+            ctl.set_mode(mode)
+    with pytest.raises(CommandError):
+        ctl.set_velocity(0.1, 0.0, 0.0, now=t)
+    ctl.set_mode("damp")  # accepted, stays latched
+    _tick(ctl, q, t + 0.006, LEVEL)
+    assert ctl.phase == "safe" and ctl.trip_reason  # level again: still latched
+    ctl.set_mode("recover")
+    assert ctl.phase == "standing_up" and ctl.trip_reason == ""
+
+
+def test_recover_on_a_side_rights_itself_and_on_the_back_asks_for_help():
+    ctl, q, t = _balancing()
+    _tick(ctl, q, t + 0.002, _quat_roll(-1.5))  # lying on its left side (+y down)
+    assert ctl.phase == "safe" and ctl.lying_side() == "left"
+    ctl.set_mode("recover")
+    assert ctl.phase == "righting"
+    out = ctl.step(t + 0.004, q, np.zeros(N_JOINTS), _quat_roll(-1.5), np.zeros(3), np.zeros(3))
+    assert np.all(out.kp > 0)  # the sequence drives the joints
+    with pytest.raises(CommandError, match="righting"):
+        ctl.set_mode("stand")
+    ctl.set_mode("damp")
+    _tick(ctl, q, t + 0.006, _quat_roll(math.pi))  # upside down
+    assert ctl.lying_side() == "back"
+    ctl.set_mode("recover")
+    assert ctl.phase == "safe" and "needs help" in ctl.trip_reason
+
+
+def test_stand_from_lying_on_a_side_is_refused():
+    ctl = LocomotionController(load_locomotion_config())
+    q = np.zeros(N_JOINTS)
+    ctl.step(0.002, q, np.zeros(N_JOINTS), _quat_roll(1.5), np.zeros(3), np.zeros(3))
+    with pytest.raises(CommandError, match="lies on its right"):
+        ctl.set_mode("stand")
+
+
+def test_degraded_limits_speed_and_stands_on_joint_stiffness():
+    ctl, q, t = _balancing()
+    ctl.degraded, ctl.speed_scale = True, 0.5
+    with pytest.raises(CommandError, match="degraded"):
+        ctl.set_velocity(0.5, 0.0, 0.0, now=t)
+    out = ctl.step(t + 0.002, q, np.zeros(N_JOINTS), LEVEL, np.zeros(3), np.array([0, 0, 9.81]))
+    assert np.all(out.kp == ctl.cfg.deadline.degraded_kp)
+    np.testing.assert_allclose(out.q_des, q[LEG_SLICE])  # held where it stood
+    # The feed-forward carries a static share of the weight: knees push (non-zero torque).
+    assert np.all(np.abs(out.tau_ff[2::3]) > 0.5)
+    ctl.set_velocity(0.3, 0.0, 0.0, now=t)  # within half the limit: accepted
+    ctl.degraded, ctl.speed_scale = False, 1.0
+    out = ctl.step(t + 0.004, q, np.zeros(N_JOINTS), LEVEL, np.zeros(3), np.array([0, 0, 9.81]))
+    assert np.all(out.kp == 0.0)
