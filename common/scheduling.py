@@ -28,6 +28,7 @@ started later (Zenoh starts some lazily); services call it from their heartbeat.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -131,37 +132,41 @@ def apply_scheduling(cfg: SchedulingConfig, tids: list[int] | None = None) -> Sc
             reasons.append(f"CPU affinity {list(cfg.cpus)} not applied: {exc}")
     if cfg.policy == "normal":
         return SchedulingResult("normal", threads=0, cpus=cpus, reasons=reasons)
-    if cfg.policy == "nice":
-        pass
-    elif not hasattr(os, "sched_setscheduler"):
-        reasons.append("SCHED_FIFO: not available on this OS")
-    else:
-        try:
-            _set_fifo(tids, cfg.priority)
+    if cfg.policy == "fifo":
+        if not hasattr(os, "sched_setscheduler"):
+            reasons.append("SCHED_FIFO: not available on this OS")
+        elif _attempt(
+            lambda: _set_fifo(tids, cfg.priority),
+            f"SCHED_FIFO {cfg.priority}",
+            f"needs CAP_SYS_NICE or `ulimit -r` >= {cfg.priority}, RLIMIT_RTPRIO is "
+            f"{_rlimit('RLIMIT_RTPRIO')}",
+            reasons,
+        ):
             return SchedulingResult(
                 "fifo", priority=cfg.priority, threads=len(tids), cpus=cpus, reasons=reasons
             )
-        except PermissionError as exc:
-            reasons.append(
-                f"SCHED_FIFO {cfg.priority} not permitted ({exc.strerror}; needs CAP_SYS_NICE "
-                f"or `ulimit -r` >= {cfg.priority}, RLIMIT_RTPRIO is {_rlimit('RLIMIT_RTPRIO')})"
-            )
-        except OSError as exc:
-            reasons.append(f"SCHED_FIFO {cfg.priority} failed: {exc}")
-    if cfg.fallback_nice < 0:
-        try:
-            _set_nice(tids, cfg.fallback_nice)
-            return SchedulingResult(
-                "nice", nice=cfg.fallback_nice, threads=len(tids), cpus=cpus, reasons=reasons
-            )
-        except PermissionError as exc:
-            reasons.append(
-                f"nice {cfg.fallback_nice} not permitted ({exc.strerror}; needs CAP_SYS_NICE "
-                f"or RLIMIT_NICE, which is {_rlimit('RLIMIT_NICE')})"
-            )
-        except OSError as exc:
-            reasons.append(f"nice {cfg.fallback_nice} failed: {exc}")
+    if cfg.fallback_nice < 0 and _attempt(
+        lambda: _set_nice(tids, cfg.fallback_nice),
+        f"nice {cfg.fallback_nice}",
+        f"needs CAP_SYS_NICE or RLIMIT_NICE, which is {_rlimit('RLIMIT_NICE')}",
+        reasons,
+    ):
+        return SchedulingResult(
+            "nice", nice=cfg.fallback_nice, threads=len(tids), cpus=cpus, reasons=reasons
+        )
     return SchedulingResult("normal", nice=_current_nice(), cpus=cpus, reasons=reasons)
+
+
+def _attempt(fn: Callable[[], None], what: str, hint: str, reasons: list[str]) -> bool:
+    """Run one scheduling step; on failure add why to ``reasons`` and return False."""
+    try:
+        fn()
+        return True
+    except PermissionError as exc:
+        reasons.append(f"{what} not permitted ({exc.strerror}; {hint})")
+    except OSError as exc:
+        reasons.append(f"{what} failed: {exc}")
+    return False
 
 
 def _rlimit(name: str) -> str:

@@ -46,12 +46,13 @@ from typing import Any
 
 import numpy as np
 from quadmanip.common import messages as m
-from quadmanip.common.bus import Bus, BusConfig
+from quadmanip.common.bus import Bus
 from quadmanip.common.rotations import quat_to_mat, yaw_from_quat
 from quadmanip.launcher import Launcher, free_endpoint
 from quadmanip.services.locomotion.controller import load_locomotion_config
 from quadmanip.sim.scenarios import Scenario, save_scenario_file
 from quadmanip.testbench.self_righting_trials import toppling_push
+from quadmanip.testbench.stack import harness_bus
 
 FALL_TILT_DEG = 10.0  # the "no fall": roll and pitch within 10°...
 FALL_HEIGHT_M = 0.25  # ... and the trunk above 0.25 m
@@ -118,14 +119,7 @@ class RobotStack:
             out=self.log,  # type: ignore[arg-type]
         )
         self.launcher.start()
-        self.bus = Bus(
-            BusConfig(
-                mode="peer",
-                connect=(self.launcher.connect or endpoint,),
-                listen=("tcp/127.0.0.1:0",),
-                env_override=False,
-            )
-        )
+        self.bus = harness_bus(self.launcher.connect or endpoint)
         self.clock = self.bus.latest("sim/clock")
         self.bus.subscribe("sim/gt/base", self._on_gt)
         self.bus.subscribe("locomotion/health", self._on_health)

@@ -29,7 +29,7 @@ from quadmanip.common.rotations import quat_to_mat, rot_z, wrap_angle, yaw_from_
 from quadmanip.launcher import Launcher, free_endpoint
 from quadmanip.sim.scenarios import Scenario, save_scenario_file
 
-__all__ = ["ActionOutcome", "StackError", "StackRun"]
+__all__ = ["ActionOutcome", "StackError", "StackRun", "harness_bus"]
 
 SERVICES = ("sim", "locomotion", "manipulation")
 QUIET_SIM = (
@@ -39,6 +39,13 @@ QUIET_SIM = (
 STAND_HEIGHT_M = 0.25  # base height above which the robot counts as standing
 LEVEL_DEG = 0.5  # ... and level once tilted less than this
 SETTLE_MAX_S = 4.0  # sim seconds to wait for that
+
+
+def harness_bus(endpoint: str) -> Bus:
+    """The harness's own peer session on a private stack's router (ignores QM_ZENOH_*)."""
+    return Bus(
+        BusConfig(mode="peer", connect=(endpoint,), listen=("tcp/127.0.0.1:0",), env_override=False)
+    )
 
 
 class StackError(RuntimeError):
@@ -120,14 +127,7 @@ class StackRun:
         )
         try:
             self.launcher.start()
-            self.bus = Bus(
-                BusConfig(
-                    mode="peer",
-                    connect=(self.launcher.connect or endpoint,),
-                    listen=("tcp/127.0.0.1:0",),
-                    env_override=False,
-                )
-            )
+            self.bus = harness_bus(self.launcher.connect or endpoint)
             self._wire()
             self._wait_standing()
         except BaseException:
