@@ -65,7 +65,7 @@ def _value(spec: FieldSpec, seed: int, depth: int) -> Any:
 
 # Fields whose values a message's own cross-field rules tie together (the judge's report:
 # one location per object from a closed set, in_place = the objects located there, a trial
-# with violations is invalid).
+# with violations is invalid; the robot status: stale ticks are some of the ticks).
 _CROSS_FIELD: dict[str, dict[str, Any]] = {
     "qm.JudgeReport": {
         "in_place": ["name0"],
@@ -74,6 +74,7 @@ _CROSS_FIELD: dict[str, dict[str, Any]] = {
         "locations": ["in_place", "wrong_place", "held"],
         "valid": False,
     },
+    "qm.RobotStatus": {"ticks": 20, "stale_ticks": 3},
 }
 
 
