@@ -71,11 +71,14 @@ class DemoOperator:
                 self._t0 = now
             t = now - self._t0
             step = max(i for i, s in enumerate(self._script) if s.start <= t)
+            if step == 0:
+                # Repeated while standing up: a single message could go out before
+                # locomotion's subscription is matched (both start together); "stand" is
+                # idempotent.
+                self._pub_mode.publish(m.LocomotionMode(stamp=now, mode="stand"))
             if step != self._step:
                 self._step = step
-                if step == 0:
-                    self._pub_mode.publish(m.LocomotionMode(stamp=now, mode="stand"))
-                elif self._gt_start is None:
+                if step > 0 and self._gt_start is None:
                     self._gt_start = self.true_position()  # where the walk begins
             vel = self._script[step].velocity
             if vel is not None:

@@ -103,8 +103,10 @@ class LocomotionNode(Service):
     def _on_mode(self, msg: m.LocomotionMode) -> None:
         with self.lock:
             try:
+                before = (self.ctl.mode, self.ctl.phase)
                 self.ctl.set_mode(msg.mode)
-                self.log.info("mode", mode=msg.mode, phase=self.ctl.phase)
+                if (self.ctl.mode, self.ctl.phase) != before:  # a repeated request is quiet
+                    self.log.info("mode", mode=msg.mode, phase=self.ctl.phase)
                 if msg.mode == "recover" and self.ctl.phase == "safe":
                     self.log.warning("cannot recover", reason=self.ctl.trip_reason)
             except CommandError as exc:
