@@ -279,7 +279,7 @@ _TABLE: tuple[Topic, ...] = (
     # locomotion
     row("locomotion", "cmd_vel", m.BodyVelocityCommand, "control", "in", "body velocity"),
     row("locomotion", "body_pose", m.BodyPoseCommand, "control", "in", "body pose offsets"),
-    row("locomotion", "mode", m.LocomotionMode, "control", "in", "stand/sit/damp/walk"),
+    row("locomotion", "mode", m.LocomotionMode, "control", "in", "stand/sit/damp/walk/recover"),
     row("locomotion", "payload", m.Payload, "control", "in", "mass in the gripper (manip.)"),
     row("locomotion", "odometry", m.Odometry, "sensor", "out", "estimated base state (odom)"),
     row("locomotion", "debug", m.LocomotionDebug, "sensor", "out", "gait, forces, MPC"),

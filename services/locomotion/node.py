@@ -13,11 +13,11 @@ held 0.5 m ahead made the standing balance rock front/back and throw the trunk u
 
 The control loop (issue 12): the Zenoh callback only hands the newest LowState to one
 control thread, which answers it; LowStates that arrived while it was busy are skipped
-(counted as missed ticks) rather than answered late one after another. The process runs
-at real-time priority where permitted (``[scheduling]``). The deadline monitor
-(deadline.py) measures missed ticks, late answers, MPC overruns and, from ``sim/status``,
-the age of the commands the robot applied and its leg timeouts; when the loop cannot keep
-up it degrades on purpose (lower speed limits). ``locomotion/health`` says ok, degraded or
+rather than answered late one after another. The process runs at real-time priority where
+permitted (``[scheduling]``). The deadline monitor (deadline.py) measures late answers,
+ticks missed because of them, MPC overruns and, from ``sim/status``, the age of the
+commands the robot applied and its leg timeouts; when the loop cannot keep up it degrades
+on purpose (lower speed limits or no walking, a joint-level stance). ``locomotion/health`` says ok, degraded or
 tripped (the safety checker's latched safe mode) with the reason, at ``health_rate`` and
 at once on every change.
 """
@@ -52,7 +52,7 @@ class LocomotionNode(Service):
         Input("sim/lowstate", doc="500 Hz encoders + IMU"),
         Input("locomotion/cmd_vel", doc="body velocity (base frame)"),
         Input("locomotion/body_pose", doc="body pose offsets (standing)"),
-        Input("locomotion/mode", doc="stand/sit/damp/walk"),
+        Input("locomotion/mode", doc="stand/sit/damp/walk/recover"),
         Input("locomotion/payload", doc="mass held in the gripper"),
         Input("sim/status", doc="command age and leg timeouts at the robot"),
     )
