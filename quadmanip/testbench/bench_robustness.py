@@ -15,7 +15,8 @@ service locomotion``); this process plays the operator and scores from ground tr
 2. **Falls** (sim in lockstep, so the trials do not depend on the load of the machine):
    ``--falls`` pushes per side through the TEST-ONLY disturbance channel, strong enough
    to topple it. Scored per trial: the sim time from ground truth crossing the safety
-   limit (roll or pitch) to the ``tripped`` health message (``fall_detect_s``), whether the
+   limit (roll or pitch) to the ``tripped`` health message (``fall_detect_s``; negative
+   when another check, e.g. a knee stretched beyond its range, tripped first), whether the
    phase went to ``safe`` (legs damped), and, after a ``recover`` command once the robot
    lies still, whether it stands (trunk above 0.25 m, tilt below 10°, phase ``balance``)
    within 10 s.
@@ -364,6 +365,10 @@ def _fall_trial(st: RobotStack, side: str, rng: np.random.Generator, limits: Any
             trial["safe"] = trip.phase == "safe"
             trial["trip_reason"] = trip.reason
         time.sleep(0.01)
+    # Let it come to rest (ground truth only times the operator), then look for the
+    # crossing of the tilt limit over the whole fall: another check (a joint beyond its
+    # range) may trip before the trunk gets there, which gives a negative detection time.
+    st.wait_sim(st.now() + 2.0)
     samples = st.window(t_push, st.now())
     cross = next((g[0] for g in samples
                   if max(abs(a) for a in roll_pitch(g[2])) > min(limits.max_roll, limits.max_pitch)),
@@ -373,9 +378,6 @@ def _fall_trial(st: RobotStack, side: str, rng: np.random.Generator, limits: Any
         trial["note"] = "no trip" if cross is not None else "did not fall"
         return trial
     trial["fall_detect_s"] = None if cross is None else round(t_trip - cross, 4)
-    # Let it come to rest (1.5 s below 0.1 rad/s would need IMU; ground truth is fine to
-    # time the operator), then reset.
-    st.wait_sim(st.now() + 2.0)
     b = st.base()
     assert b is not None
     trial["lying_tilt_deg"] = tilt_deg(b[2])
@@ -452,7 +454,7 @@ def main(argv: list[str]) -> int:
         "load_scheduling": sorted({r.get("scheduling", "") for r in loads}),
         "fall_detect_s_p50": statistics.median(detects) if detects else None,
         "fall_detect_s_max": max(detects) if detects else None,
-        "falls_detected": f"{len(detects)}/{len(trials)}",
+        "falls_detected": f"{sum('trip_reason' in t for t in trials)}/{len(trials)}",
         "safe_engaged": sum(t["safe"] for t in trials),
         "self_right_success": sum(t["righted"] for t in trials),
         "self_right_trials": len(trials),
