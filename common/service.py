@@ -49,6 +49,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import gc
 import json
 import logging
 import os
@@ -409,6 +410,12 @@ def _apply_scheduling(svc: Service, heartbeat: _Heartbeat, log: StructuredLogger
     cfg = svc.scheduling()
     if cfg is None or (cfg.policy == "normal" and not cfg.cpus):
         return
+    if cfg.policy != "normal":
+        # A deadline loop must not stop for a full garbage collection: move everything
+        # built during setup (models, imports) out of the collector's view, so a
+        # collection only scans what the loop itself allocates.
+        gc.collect()
+        gc.freeze()
     sched = ThreadScheduler(cfg)
     res = sched.apply()
     svc.scheduling_result = sched.result
