@@ -48,9 +48,10 @@ from typing import Any
 import numpy as np
 from quadmanip.common import messages as m
 from quadmanip.common.bus import Bus
-from quadmanip.common.rotations import quat_to_mat, yaw_from_quat
+from quadmanip.common.rotations import quat_to_mat, rpy_from_mat, yaw_from_quat
 from quadmanip.launcher import Launcher, free_endpoint
 from quadmanip.services.locomotion.controller import load_locomotion_config
+from quadmanip.services.locomotion.self_righting import gravity_in_base, tilt_angle
 from quadmanip.sim.scenarios import Scenario, save_scenario_file
 from quadmanip.testbench.self_righting_trials import toppling_push
 from quadmanip.testbench.stack import harness_bus
@@ -71,15 +72,8 @@ def _say(text: str) -> None:
 
 
 def tilt_deg(quat: np.ndarray) -> float:
-    """Angle between the trunk's z axis and the vertical (covers roll and pitch)."""
-    r = quat_to_mat(np.asarray(quat, float))
-    return math.degrees(math.acos(float(np.clip(r[2, 2], -1.0, 1.0))))
-
-
-def roll_pitch(quat: np.ndarray) -> tuple[float, float]:
-    """Roll and pitch (rad, ZYX) of a [w, x, y, z] quaternion."""
-    r = quat_to_mat(np.asarray(quat, float))
-    return math.atan2(r[2, 1], r[2, 2]), -math.asin(float(np.clip(r[2, 0], -1.0, 1.0)))
+    """Angle between the trunk's z axis and the vertical (deg; covers roll and pitch)."""
+    return math.degrees(tilt_angle(gravity_in_base(quat)))
 
 
 @contextlib.contextmanager
@@ -371,7 +365,8 @@ def _fall_trial(st: RobotStack, side: str, rng: np.random.Generator, limits: Any
     st.wait_sim(st.now() + 2.0)
     samples = st.window(t_push, st.now())
     cross = next((g[0] for g in samples
-                  if max(abs(a) for a in roll_pitch(g[2])) > min(limits.max_roll, limits.max_pitch)),
+                  if np.max(np.abs(rpy_from_mat(quat_to_mat(g[2]))[:2]))
+                  > min(limits.max_roll, limits.max_pitch)),
                  None)  # fmt: skip
     trial["t_cross"] = None if cross is None else cross - t_push
     if t_trip is None:

@@ -541,7 +541,7 @@ class LocomotionController:
         # Estimator.
         foot_vel = self.kin.foot_velocities(dq16[LEG_SLICE])
         # Stance feet roll: their centres move by ω_calf × r·up, which is not base motion.
-        up_b = quat_to_mat(quat)[2, :]  # world z in the base frame
+        up_b = self.gravity_b  # world z in the base frame (from this tick's IMU, in step())
         roll = self.kin.rolling_velocities(
             dq16[LEG_SLICE], np.asarray(gyro, float), up_b, cfg.estimator.foot_radius
         )
