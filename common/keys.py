@@ -270,6 +270,7 @@ _TABLE: tuple[Topic, ...] = (
     row("sim", "arm_trajectory", m.ArmTrajectory, "control", "in", "arm trajectory (manip.)"),
     row("sim", "gripper_command", m.GripperCommand, "control", "in", "gripper gap (manip.)"),
     row("sim", "test/disturbance", m.Disturbance, "control", "in", "TEST-ONLY external wrench"),
+    row("sim", "estop", m.EmergencyStop, "control", "in", "software e-stop (latched damping)"),
     # ground truth: judge, tests and visualisation only
     row("sim", "gt/base", m.GroundTruthPoses, "gt", "out", "true base pose (name 'base')"),
     row("sim", "gt/objects", m.GroundTruthPoses, "gt", "out", "true object poses"),

@@ -45,6 +45,7 @@ __all__ = [
     "BodyVelocityCommand",
     "Clock",
     "Disturbance",
+    "EmergencyStop",
     "DrawerGoal",
     "GraspGoal",
     "GripperCommand",
@@ -144,14 +145,15 @@ class LowState(Message):
 # --------------------------------------------------------------------------- commands
 
 
-@message("qm.RobotStatus", (1, 0))
+@message("qm.RobotStatus", (1, 1))
 class RobotStatus(Message):
     """The robot side's view of the control link (sim or hardware adapter), every
     ``1/status_rate`` s: ``ticks`` control ticks in the window, of which ``stale_ticks``
     had no new leg command (the last one was reused); the age (in ticks) of the leg
     command applied, median and max over the window; ``leg_timeouts``: times the legs fell
     back to damping because commands stopped (total since the start); ``rtf``: sim time
-    over wall time in the window (1.0 on hardware); ``leg_mode``: active or damping."""
+    over wall time in the window (1.0 on hardware); ``leg_mode``: active, damping, or
+    estop (an emergency stop is latched; 1.1)."""
 
     stamp: float
     ticks: int = 0
@@ -159,7 +161,7 @@ class RobotStatus(Message):
     cmd_age_p50: float = 0.0
     cmd_age_max: int = 0
     leg_timeouts: int = 0
-    leg_mode: str = string(choices=("active", "damping"), default="damping")
+    leg_mode: str = string(choices=("active", "damping", "estop"), default="damping")
     rtf: float = 0.0
     mode: str = string(max_len=16, default="")
 
@@ -547,6 +549,17 @@ class DrawerGoal(Message):
 
 
 # --------------------------------------------------------------------------- sim test / ground truth
+
+
+@message("qm.EmergencyStop", (1, 0))
+class EmergencyStop(Message):
+    """Software emergency stop for the robot side (sim or hardware adapter):
+    ``engage`` true puts legs and arm in damping at once and latches; only a message
+    with ``engage`` false releases it (then the legs wait for a fresh leg command)."""
+
+    stamp: float
+    engage: bool = True
+    reason: str = string(max_len=200, default="")
 
 
 @message("qm.Disturbance", (1, 0))

@@ -44,10 +44,20 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from enum import StrEnum
 
 import mujoco
 import numpy as np
+from quadmanip.common.actuator_commands import (
+    ArmSegment,
+    LegMode,
+    LegWatchdog,
+    active_segment,
+    check_arm_trajectory,
+    check_leg_command,
+    hermite,
+    lerp,
+    queue_segment,
+)
 from quadmanip.common.joint_layout import GRIPPER_ACTUATOR
 from quadmanip.common.joint_layout import N_ARM_JOINTS as N_ARM
 from quadmanip.common.joint_layout import N_LEG_JOINTS as N_LEG
@@ -82,13 +92,6 @@ class ActuatorConfig:
     gripper_kp: float = 20000.0
     gripper_kd: float = 150.0
     gripper_default_force: float = 20.0
-
-
-class LegMode(StrEnum):
-    """What the leg motors are doing; reported in the sim's state/heartbeat."""
-
-    DAMPING = "damping"
-    ACTIVE = "active"
 
 
 @dataclass(frozen=True)
@@ -232,58 +235,16 @@ def torque_speed_clamp(
     return np.where(driving, np.clip(tau, -lim, lim), tau)
 
 
-def hermite(
-    t: np.ndarray, q: np.ndarray, dq: np.ndarray, now: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Cubic Hermite interpolation of knots (t[N], q[N,k], dq[N,k]) at ``now``.
-
-    Exact at the knots (position and velocity), C1 between them. Before the first knot
-    it returns the first point, after the last the last point with zero velocity.
-    """
-    n = len(t)
-    if now <= t[0]:
-        return q[0].copy(), (dq[0].copy() if n == 1 or now == t[0] else np.zeros_like(q[0]))
-    if now >= t[-1]:
-        return q[-1].copy(), (dq[-1].copy() if now == t[-1] else np.zeros_like(q[-1]))
-    i = int(np.searchsorted(t, now, side="right") - 1)
-    h = t[i + 1] - t[i]
-    s = (now - t[i]) / h
-    s2, s3 = s * s, s * s * s
-    h00 = 2 * s3 - 3 * s2 + 1
-    h10 = s3 - 2 * s2 + s
-    h01 = -2 * s3 + 3 * s2
-    h11 = s3 - s2
-    pos = h00 * q[i] + h10 * h * dq[i] + h01 * q[i + 1] + h11 * h * dq[i + 1]
-    d00 = (6 * s2 - 6 * s) / h
-    d10 = 3 * s2 - 4 * s + 1
-    d01 = (-6 * s2 + 6 * s) / h
-    d11 = 3 * s2 - 2 * s
-    vel = d00 * q[i] + d10 * dq[i] + d01 * q[i + 1] + d11 * dq[i + 1]
-    return pos, vel
-
-
-def lerp(t: np.ndarray, y: np.ndarray, now: float) -> np.ndarray:
-    """Piecewise-linear interpolation of knot rows ``y[N, k]`` at ``now``; the first row
-    before the first knot, the last one after the last."""
-    if now <= t[0]:
-        return y[0].copy()
-    if now >= t[-1]:
-        return y[-1].copy()
-    i = int(np.searchsorted(t, now, side="right") - 1)
-    s = (now - t[i]) / (t[i + 1] - t[i])
-    return (1.0 - s) * y[i] + s * y[i + 1]
-
-
-@dataclass(frozen=True)
-class ArmSegment:
-    """One accepted arm trajectory (``tau_ff`` None: no feed-forward)."""
-
-    t: np.ndarray
-    q: np.ndarray
-    dq: np.ndarray
-    kp: np.ndarray
-    kd: np.ndarray
-    tau_ff: np.ndarray | None = None
+__all__ = [
+    "ActuatorConfig",
+    "ActuatorLayer",
+    "ArmSegment",
+    "JointMap",
+    "LegMode",
+    "hermite",
+    "lerp",
+    "torque_speed_clamp",
+]
 
 
 class ActuatorLayer:
@@ -307,12 +268,11 @@ class ActuatorLayer:
         self.gripper = _gripper_map(model, tuple(gripper_joints), gripper_actuator)
         self.rejected = 0
         self.reject_reasons: dict[str, int] = {}
-        # Legs: start in damping, no command yet.
+        # Legs: start in damping, no command yet; the watchdog (shared with hardware
+        # adapters) decides active / damping / e-stop and counts the timeouts.
         self._leg_cmd: tuple[np.ndarray, ...] | None = None
-        self._leg_cmd_time = -np.inf
+        self.watchdog = LegWatchdog(config.leg_timeout)
         self.leg_mode = LegMode.DAMPING
-        # Times the legs fell back to damping because commands stopped (active → damping).
-        self.leg_timeouts = 0
         # Arm: hold the pose found at the first step.
         self._arm_segments: list[ArmSegment] = []
         self._arm_hold: np.ndarray | None = None
@@ -371,22 +331,32 @@ class ActuatorLayer:
         tau_ff: np.ndarray,
     ) -> bool:
         """Accept a leg command received at sim time ``now``; False if rejected."""
-        names = ("q_des", "dq_des", "kp", "kd", "tau_ff")
-        arrays = [q_des, dq_des, kp, kd, tau_ff]
-        for i, a in enumerate(arrays):
-            if np.shape(a) != (N_LEG,):
-                return self._reject("leg", f"{names[i]} shape {np.shape(a)} != ({N_LEG},)")
-        try:
-            cmd = np.array(arrays, dtype=float)  # (5, 12), a private copy
-        except (TypeError, ValueError):
-            return self._reject("leg", "not numbers")
-        if not np.isfinite(cmd).all():
-            return self._reject("leg", "non-finite value")
-        if (cmd[2:4] < 0).any():
-            return self._reject("leg", "negative gain")
+        cmd, reason = check_leg_command(q_des, dq_des, kp, kd, tau_ff)
+        if cmd is None:
+            return self._reject("leg", reason)
         self._leg_cmd = tuple(cmd)
-        self._leg_cmd_time = float(now)
+        self.watchdog.command(now)
         return True
+
+    @property
+    def leg_timeouts(self) -> int:
+        """Times the legs fell back to damping because commands stopped."""
+        return self.watchdog.timeouts
+
+    def engage_estop(self, reason: str) -> None:
+        """Emergency stop: legs and arm damp at once, latched until :meth:`reset_estop`."""
+        if self.watchdog.estop_reason is None:
+            log.warning("emergency stop: damping", reason=reason)
+        self.watchdog.engage_estop(reason)
+
+    def reset_estop(self) -> None:
+        """Release the emergency stop (the legs wait for a fresh command; the arm holds
+        where it is until a new trajectory)."""
+        if self.watchdog.estop_reason is not None:
+            log.info("emergency stop reset")
+            self._arm_segments = []
+            self._arm_hold = None
+        self.watchdog.reset_estop()
 
     def set_arm_trajectory(
         self,
@@ -400,33 +370,10 @@ class ActuatorLayer:
     ) -> bool:
         """Accept an arm trajectory; it takes over from its first time stamp on.
         ``tau_ff`` (N, 4): feed-forward torque per knot (N m), None for zeros."""
-        t = np.asarray(t, dtype=float)
-        q = np.asarray(q, dtype=float)
-        dq = np.asarray(dq, dtype=float)
-        kp = np.asarray(kp, dtype=float)
-        kd = np.asarray(kd, dtype=float)
-        ff = np.zeros_like(q) if tau_ff is None else np.asarray(tau_ff, dtype=float)
-        if t.ndim != 1 or len(t) < 1:
-            return self._reject("arm", f"t shape {t.shape} is not (N>=1,)")
-        n = len(t)
-        if q.shape != (n, N_ARM) or dq.shape != (n, N_ARM):
-            return self._reject("arm", f"q/dq shapes {q.shape}/{dq.shape} != ({n}, 4)")
-        if kp.shape != (N_ARM,) or kd.shape != (N_ARM,):
-            return self._reject("arm", f"kp/kd shapes {kp.shape}/{kd.shape} != (4,)")
-        if ff.shape != (n, N_ARM):
-            return self._reject("arm", f"tau_ff shape {ff.shape} != ({n}, 4)")
-        if not all(np.all(np.isfinite(a)) for a in (t, q, dq, kp, kd, ff)):
-            return self._reject("arm", "non-finite value")
-        if np.any(kp < 0) or np.any(kd < 0):
-            return self._reject("arm", "negative gain")
-        if n > 1 and np.any(np.diff(t) <= 0):
-            return self._reject("arm", "time stamps not strictly increasing")
-        seg = ArmSegment(
-            t.copy(), q.copy(), dq.copy(), kp.copy(), kd.copy(), ff.copy() if ff.any() else None
-        )
-        # Replace everything from this trajectory's first stamp on.
-        self._arm_segments = [s for s in self._arm_segments if s.t[0] < t[0]]
-        self._arm_segments.append(seg)
+        seg, reason = check_arm_trajectory(t, q, dq, kp, kd, tau_ff)
+        if seg is None:
+            return self._reject("arm", reason)
+        self._arm_segments = queue_segment(self._arm_segments, seg)
         return True
 
     def set_gripper_command(self, now: float, gap: float, max_force: float) -> bool:
@@ -469,10 +416,9 @@ class ActuatorLayer:
 
     # -------------------------------------------------------------------- apply
     def leg_mode_at(self, now: float) -> LegMode:
-        """Active while the last valid leg command is younger than the timeout."""
-        if self._leg_cmd is None or now - self._leg_cmd_time > self.config.leg_timeout + 1e-9:
-            return LegMode.DAMPING
-        return LegMode.ACTIVE
+        """Active while the last valid leg command is younger than the timeout (and no
+        emergency stop is latched)."""
+        return self.watchdog.mode_at(now)
 
     def apply(self, data: mujoco.MjData) -> None:
         """Compute and write the motor torques for the current physics step.
@@ -485,10 +431,9 @@ class ActuatorLayer:
         q = data.qpos[self._j_qpos]
         dq = data.qvel[self._j_dof]
         # Legs.
-        mode = self.leg_mode_at(now)
+        mode = self.watchdog.update(now)
         if mode is not self.leg_mode:
-            if mode is LegMode.DAMPING:
-                self.leg_timeouts += 1
+            if mode is LegMode.DAMPING and self.leg_mode is LegMode.ACTIVE:
                 log.warning("leg commands timed out: damping", t=round(now, 4),
                             timeouts=self.leg_timeouts)  # fmt: skip
             else:
@@ -502,11 +447,12 @@ class ActuatorLayer:
             tau[:N_LEG] = -cfg.leg_damping_kd * dq[:N_LEG]
         # Arm.
         qa, dqa = q[N_LEG:], dq[N_LEG:]
-        segs = self._arm_segments
-        while len(segs) > 1 and segs[1].t[0] <= now:
-            segs.pop(0)
-        if segs and segs[0].t[0] <= now:
-            seg = segs[0]
+        seg = active_segment(self._arm_segments, now)
+        if mode is LegMode.ESTOP:  # the arm damps too
+            self._arm_segments = []
+            self._arm_hold = None
+            tau[N_LEG:] = -cfg.arm_hold_kd * dqa
+        elif seg is not None:
             qd, dqd = hermite(seg.t, seg.q, seg.dq, now)
             tau[N_LEG:] = seg.kp * (qd - qa) + seg.kd * (dqd - dqa)
             if seg.tau_ff is not None:

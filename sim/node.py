@@ -3,7 +3,8 @@
 It speaks exactly the keys a hardware adapter would (docs/architecture.md, "Processes and
 ownership"): LowState every control tick on ``sim/lowstate``, ``sim/clock``, RGB-D frames on
 ``sim/camera/front`` and ``sim/camera/gripper``, LiDAR on ``sim/scan``; it takes
-``sim/leg_command``, ``sim/arm_trajectory``, ``sim/gripper_command``. Ground truth goes
+``sim/leg_command``, ``sim/arm_trajectory``, ``sim/gripper_command`` and the software
+emergency stop ``sim/estop`` (latched damping of legs and arm, as on the hardware adapter). Ground truth goes
 only under ``sim/gt/**`` (base, object and drawer-handle poses, contacts, the judge's report), and the
 test-only ``sim/test/disturbance`` is obeyed only when ``allow_test_disturbance`` is set.
 
@@ -33,12 +34,12 @@ from __future__ import annotations
 
 import argparse
 import collections
-import statistics
 import threading
 import time
 from typing import Any
 
 from quadmanip.common import messages as msg
+from quadmanip.common.link_stats import LinkStats
 from quadmanip.common.robot_description import FRONT_CAMERA, GRIPPER_CAMERA
 from quadmanip.common.scheduling import SchedulingConfig
 from quadmanip.common.service import Input, Output, Service, run_service
@@ -65,6 +66,7 @@ class SimNode(Service):
         Input("sim/arm_trajectory", doc="arm joint trajectory"),
         Input("sim/gripper_command", doc="finger gap + force limit"),
         Input("sim/test/disturbance", doc="TEST ONLY, needs the config flag"),
+        Input("sim/estop", doc="software e-stop: latched damping until reset"),
     )
     outputs = (
         Output("sim/clock"),
@@ -137,6 +139,7 @@ class SimNode(Service):
         self.subscribe("sim/arm_trajectory", self._on_other)
         self.subscribe("sim/gripper_command", self._on_other)
         self.subscribe("sim/test/disturbance", self._on_other)
+        self.subscribe("sim/estop", self._on_other)
 
     # ------------------------------------------------------------------ output
     def _publish(self, out: TickOutput) -> None:
@@ -187,6 +190,11 @@ class SimNode(Service):
                 eng.apply_gripper_command(m)
             elif isinstance(m, msg.Disturbance):
                 eng.apply_disturbance(m)
+            elif isinstance(m, msg.EmergencyStop):
+                if m.engage:
+                    eng.actuators.engage_estop(m.reason or "sim/estop")
+                else:
+                    eng.actuators.reset_estop()
 
     # -------------------------------------------------------------------- loop
     def run(self) -> None:
@@ -312,40 +320,6 @@ class SimNode(Service):
     def teardown(self) -> None:
         if self.engine is not None:
             self.engine.close()
-
-
-class LinkStats:
-    """How leg commands arrive, per status window: the age (ticks) of the command applied
-    at each tick and the ticks that got no new command (the last one is reused)."""
-
-    def __init__(self) -> None:
-        self._ages: list[int] = []
-        self._stale = 0
-        self._ticks = 0
-        self._last: msg.LegCommand | None = None
-
-    def record(self, tick: int, cmd: msg.LegCommand | None) -> None:
-        """Tick ``tick`` is about to be stepped with ``cmd`` (None: no new command)."""
-        self._ticks += 1
-        if cmd is None:
-            self._stale += 1
-            cmd = self._last
-        self._last = cmd
-        if cmd is not None:
-            self._ages.append(max(0, tick - int(cmd.tick)))
-
-    def flush(self, **fields: Any) -> msg.RobotStatus:
-        """The window's RobotStatus (``fields`` fill the rest); starts a new window."""
-        ages = self._ages
-        status = msg.RobotStatus(
-            ticks=self._ticks,
-            stale_ticks=self._stale,
-            cmd_age_p50=float(statistics.median(ages)) if ages else 0.0,
-            cmd_age_max=max(ages, default=0),
-            **fields,
-        )
-        self._ages, self._stale, self._ticks = [], 0, 0
-        return status
 
 
 def main(argv: list[str] | None = None) -> int:

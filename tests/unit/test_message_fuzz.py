@@ -226,7 +226,7 @@ def robot_status(draw: st.DrawFn) -> m.RobotStatus:
         cmd_age_p50=draw(st.floats(0.0, 1e6)),
         cmd_age_max=draw(st.integers(0, 1 << 30)),
         leg_timeouts=draw(st.integers(0, 1 << 30)),
-        leg_mode=draw(st.sampled_from(["active", "damping"])),
+        leg_mode=draw(st.sampled_from(["active", "damping", "estop"])),
         rtf=draw(st.floats(0.0, 100.0)),
     )
 
@@ -276,6 +276,7 @@ STRATEGIES: dict[type[Message], st.SearchStrategy] = {
     m.PlaceGoal: auto(m.PlaceGoal),
     m.DrawerGoal: auto(m.DrawerGoal, pull_direction=unit_vec),
     m.Disturbance: auto(m.Disturbance, duration=nonneg),
+    m.EmergencyStop: auto(m.EmergencyStop),
     m.GroundTruthPoses: gt_poses(),
     m.GroundTruthContacts: gt_contacts(),
     m.JudgeReport: judge(),

@@ -1,10 +1,10 @@
-"""The sim node's view of the control link (sim/node.py LinkStats → sim/status)."""
+"""The sim node's view of the control link (common/link_stats.py LinkStats → sim/status)."""
 
 from __future__ import annotations
 
 import numpy as np
 from quadmanip.common import messages as m
-from quadmanip.sim.node import LinkStats
+from quadmanip.common.link_stats import LinkStats
 
 
 def _cmd(tick: int) -> m.LegCommand:
