@@ -2,7 +2,7 @@
 
 from setuptools import find_namespace_packages, setup
 
-TOP_LEVEL = ("common", "services", "sim", "configs")
+TOP_LEVEL = ("common", "services", "sim", "hardware", "configs")
 
 packages = [
     "quadmanip",

@@ -20,6 +20,10 @@ SERVICES: dict[str, str] = {
     "locomotion": "quadmanip.services.locomotion.node:main",
     "manipulation": "quadmanip.services.manipulation.node:main",
     "viz": "quadmanip.services.viz.node:main",
+    # The hardware adapter fills the sim's role on a Unitree SDK2 robot (docs/hardware.md),
+    # and the simulated robot it is tested against (test and demo tooling).
+    "unitree-adapter": "quadmanip.hardware.unitree.node:main",
+    "unitree-sim-robot": "quadmanip.testbench.unitree_sim_robot:main",
 }
 
 

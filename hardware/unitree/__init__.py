@@ -1,0 +1,1 @@
+"""The Unitree SDK2 (DDS) adapter: legs over ``rt/lowcmd`` / ``rt/lowstate``."""
