@@ -10,13 +10,23 @@ effort in states. Every message carries the SDK's CRC.
 
 from __future__ import annotations
 
+import struct
 import threading
 
 import numpy as np
 from quadmanip.common.joint_layout import N_ARM_JOINTS
 from quadmanip.hardware.arm_driver import ArmReading, ArmSetpoint, StreamingArmDriver
 from quadmanip.hardware.unitree import dds
-from quadmanip.hardware.unitree.lowlevel import MOTOR_SERVO, crc_ok, new_lowcmd, seal
+from quadmanip.hardware.unitree.lowlevel import (
+    MOTOR_SERVO,
+    ST_MOTOR0,
+    ST_MOTOR_STRIDE,
+    decode_lowstate,
+    fast_wire,
+    lowstate_crc_ok,
+    new_lowcmd,
+    seal,
+)
 from unitree_sdk2py.idl.unitree_go.msg.dds_ import LowCmd_, LowState_
 
 __all__ = ["ARM_SLOTS", "GRIPPER_SLOT", "DdsServoArmDriver"]
@@ -34,20 +44,25 @@ class DdsServoArmDriver(StreamingArmDriver):
         self._reading: ArmReading | None = None
         self.bad_crc = 0
         self.cmd = new_lowcmd(np.array([*ARM_SLOTS, GRIPPER_SLOT]))
+        fast_wire(self.cmd)
         self._pub = dds.publisher(cmd_topic, LowCmd_)
-        self._sub = dds.subscriber(state_topic, LowState_, self._on_state)
+        self._sub = dds.raw_subscriber(state_topic, LowState_, self._on_state)
 
-    def _on_state(self, st: LowState_) -> None:
-        if not crc_ok(st):
+    def _on_state(self, data: bytes) -> None:
+        try:
+            v = decode_lowstate(data)
+        except (ValueError, struct.error):
+            v = None
+        if v is None or not lowstate_crc_ok(v):
             self.bad_crc += 1
             return
-        ms = st.motor_state
+        m = [ST_MOTOR0 + ST_MOTOR_STRIDE * i for i in (*ARM_SLOTS, GRIPPER_SLOT)]
         reading = ArmReading(
-            q=np.array([ms[i].q for i in ARM_SLOTS], dtype=float),
-            dq=np.array([ms[i].dq for i in ARM_SLOTS], dtype=float),
-            tau=np.array([ms[i].tau_est for i in ARM_SLOTS], dtype=float),
-            gripper_gap=float(ms[GRIPPER_SLOT].q),
-            gripper_effort=float(ms[GRIPPER_SLOT].tau_est),
+            q=np.array([v[i + 1] for i in m[:N_ARM_JOINTS]], dtype=float),
+            dq=np.array([v[i + 2] for i in m[:N_ARM_JOINTS]], dtype=float),
+            tau=np.array([v[i + 4] for i in m[:N_ARM_JOINTS]], dtype=float),
+            gripper_gap=float(v[m[-1] + 1]),
+            gripper_effort=float(v[m[-1] + 4]),
         )
         with self._lock:
             self._reading = reading
@@ -70,5 +85,5 @@ class DdsServoArmDriver(StreamingArmDriver):
         self._pub.Write(self.cmd)
 
     def close(self) -> None:
-        self._sub.Close()
+        self._sub.close()
         self._pub.Close()

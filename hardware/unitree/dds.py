@@ -17,9 +17,10 @@ from unitree_sdk2py.core.channel import (
     ChannelSubscriber,
 )
 
-__all__ = ["init_dds", "publisher", "subscriber"]
+__all__ = ["init_dds", "publisher", "raw_subscriber", "subscriber"]
 
 _initialised: tuple[int, str] | None = None
+_participant: Any = None
 
 
 def init_dds(domain_id: int, interface: str) -> None:
@@ -48,3 +49,45 @@ def subscriber(topic: str, msg_type: type, handler: Callable[[Any], None]) -> Ch
     sub = ChannelSubscriber(topic, msg_type)
     sub.Init(handler, 0)
     return sub
+
+
+class RawSubscriber:
+    """A reader that hands each valid sample's wire bytes to ``on_bytes`` (DDS listener
+    thread) instead of the SDK's Python deserialiser (wire_format.py says why); the
+    topic and type are the SDK's, so it matches the robot's writers as the SDK's own
+    subscriber does."""
+
+    def __init__(self, topic: str, msg_type: type, on_bytes: Callable[[bytes], None]) -> None:
+        from cyclonedds._clayer import ddspy_take
+        from cyclonedds.core import Listener
+        from cyclonedds.domain import DomainParticipant
+        from cyclonedds.sub import DataReader
+        from cyclonedds.topic import Topic
+
+        global _participant
+        if _initialised is None:
+            raise RuntimeError("init_dds() first")
+        if _participant is None:
+            _participant = DomainParticipant(_initialised[0])
+        self._take = ddspy_take
+        self._on_bytes = on_bytes
+        self._topic = Topic(_participant, topic, msg_type)
+        self._reader = DataReader(
+            _participant, self._topic, listener=Listener(on_data_available=self._on_data)
+        )
+
+    def _on_data(self, reader: Any) -> None:
+        ret = self._take(reader._ref, 8)
+        if isinstance(ret, int):  # a DDS error code
+            return
+        for data, info in ret:
+            if info.valid_data:
+                self._on_bytes(data)
+
+    def close(self) -> None:
+        self._reader = None
+
+
+def raw_subscriber(topic: str, msg_type: type, on_bytes: Callable[[bytes], None]) -> RawSubscriber:
+    """A :class:`RawSubscriber` (after :func:`init_dds`)."""
+    return RawSubscriber(topic, msg_type, on_bytes)

@@ -16,6 +16,13 @@ from dataclasses import dataclass
 import numpy as np
 from quadmanip.hardware.leg_safety import MotorTargets
 from quadmanip.hardware.unitree.joint_map import LEG_MAP, N_SDK_MOTORS, LegJointMap
+from quadmanip.hardware.unitree.wire_format import (
+    CDR_HEADER_LE,
+    LOWCMD_FIELDS,
+    LOWSTATE_FIELDS,
+    c_struct,
+    cdr_struct,
+)
 from unitree_sdk2py.idl.default import unitree_go_msg_dds__LowCmd_, unitree_go_msg_dds__LowState_
 from unitree_sdk2py.idl.unitree_go.msg.dds_ import LowCmd_, LowState_
 from unitree_sdk2py.utils.crc import CRC
@@ -30,7 +37,13 @@ __all__ = [
     "crc_ok",
     "new_lowcmd",
     "new_lowstate",
+    "decode_lowcmd",
+    "decode_lowstate",
+    "fast_wire",
+    "lowcmd_crc_ok",
+    "lowstate_crc_ok",
     "read_lowstate",
+    "read_lowstate_values",
     "seal",
 ]
 
@@ -45,19 +58,23 @@ POS_STOP_F = 2.146e9
 VEL_STOP_F = 16000.0
 
 _crc = CRC()
-# The messages' C layouts (little-endian, 4-byte aligned), over which the robot computes
-# its CRC-32 (the SDK's algorithm and C routine). The SDK's own CRC builds a Python list
-# word by word (about 150 us a message); packing with one Struct and handing the words
-# to the same C routine gives the same value in a fraction of that, which matters at
-# 500 Hz in Python. tests/unit/test_unitree_adapter.py checks both agree.
-_LOWCMD = struct.Struct("<4B4IH2x" + "B3x5f3I" * N_SDK_MOTORS + "4B" + "55Bx2I")
-_LOWSTATE = struct.Struct(
-    "<4B4IH2x" + "13fb3x" + "B3x7fb3x3I" * N_SDK_MOTORS + "4BiH4b15H" + "8hI41B3xf2b2x2f4h2I"
-)
-_crc_core = _crc.crc_lib.crc32_core if getattr(_crc, "crc_lib", None) is not None else None
+_crc_core = getattr(_crc, "crc_lib", None)
+_crc_core = _crc_core.crc32_core if _crc_core is not None else None
+_LOWCMD_C = c_struct(LOWCMD_FIELDS)
+_LOWSTATE_C = c_struct(LOWSTATE_FIELDS)
+_LOWCMD_CDR = cdr_struct(LOWCMD_FIELDS)
+_LOWSTATE_CDR = cdr_struct(LOWSTATE_FIELDS)
+# Positions in the flat value tuples (IDL order, wire_format's field lists).
+_HDR = 9  # head[2] level_flag frame_reserve sn[2] version[2] bandwidth
+CMD_MOTOR0, CMD_MOTOR_STRIDE = _HDR, 9  # mode q dq tau kp kd reserve[3]
+ST_IMU = _HDR  # quaternion[4] gyroscope[3] accelerometer[3] rpy[3] temperature
+ST_MOTOR0, ST_MOTOR_STRIDE = _HDR + 14, 12  # mode q dq ddq tau_est ... (12 values)
+ST_FOOT = ST_MOTOR0 + 20 * ST_MOTOR_STRIDE + 25  # after the BMS state's 25 values
+ST_TICK = ST_FOOT + 8
 
 
-def _lowcmd_values(c: LowCmd_) -> list:
+def lowcmd_values(c: LowCmd_) -> list:
+    """The LowCmd_'s fields flattened in IDL order."""
     v = [*c.head, c.level_flag, c.frame_reserve, *c.sn, *c.version, c.bandwidth]
     for m in c.motor_cmd:
         v += (m.mode, m.q, m.dq, m.tau, m.kp, m.kd, *m.reserve)
@@ -66,7 +83,8 @@ def _lowcmd_values(c: LowCmd_) -> list:
     return v
 
 
-def _lowstate_values(s: LowState_) -> list:
+def lowstate_values(s: LowState_) -> list:
+    """The LowState_'s fields flattened in IDL order."""
     v = [*s.head, s.level_flag, s.frame_reserve, *s.sn, *s.version, s.bandwidth]
     i = s.imu_state
     v += (*i.quaternion, *i.gyroscope, *i.accelerometer, *i.rpy, i.temperature)
@@ -81,19 +99,62 @@ def _lowstate_values(s: LowState_) -> list:
     return v
 
 
-def crc32(msg: LowCmd_ | LowState_) -> int:
-    """The SDK's CRC-32 of a ``unitree_go`` LowCmd_ or LowState_ (every word but the last,
-    which is the crc itself)."""
-    if _crc_core is None:  # no C routine for this platform: the SDK's own path
-        return int(_crc.Crc(msg))
-    if isinstance(msg, LowCmd_):
-        raw = _LOWCMD.pack(*_lowcmd_values(msg))
-    elif isinstance(msg, LowState_):
-        raw = _LOWSTATE.pack(*_lowstate_values(msg))
-    else:
-        raise TypeError(f"no CRC for {type(msg).__name__}")
-    words = np.frombuffer(raw, dtype="<u4")[:-1]
+def _crc_of(layout: struct.Struct, values: tuple | list) -> int:
+    raw = layout.pack(*values)
+    words = np.frombuffer(raw, dtype="<u4")[:-1]  # every word but the crc itself
+    if _crc_core is None:  # no C routine for this platform: the SDK's Python loop
+        return int(_crc._crc_py(words.tolist()))
     return int(_crc_core(words.ctypes.data_as(ctypes.POINTER(ctypes.c_uint32)), len(words)))
+
+
+def crc32(msg: LowCmd_ | LowState_) -> int:
+    """The SDK's CRC-32 of a ``unitree_go`` LowCmd_ or LowState_."""
+    if isinstance(msg, LowCmd_):
+        return _crc_of(_LOWCMD_C, lowcmd_values(msg))
+    if isinstance(msg, LowState_):
+        return _crc_of(_LOWSTATE_C, lowstate_values(msg))
+    raise TypeError(f"no CRC for {type(msg).__name__}")
+
+
+def lowcmd_crc_ok(values: tuple) -> bool:
+    """CRC check of a decoded LowCmd_ (:func:`decode_lowcmd`)."""
+    return int(values[-1]) == _crc_of(_LOWCMD_C, values)
+
+
+def lowstate_crc_ok(values: tuple) -> bool:
+    """CRC check of a decoded LowState_ (:func:`decode_lowstate`)."""
+    return int(values[-1]) == _crc_of(_LOWSTATE_C, values)
+
+
+def decode_lowcmd(data: bytes) -> tuple:
+    """A LowCmd_ sample's wire bytes → its flat field values (IDL order)."""
+    if data[:4] != CDR_HEADER_LE:
+        raise ValueError(f"not a little-endian XCDR1 sample (header {data[:4].hex()})")
+    return _LOWCMD_CDR.unpack_from(data, 4)
+
+
+def decode_lowstate(data: bytes) -> tuple:
+    """A LowState_ sample's wire bytes → its flat field values (IDL order)."""
+    if data[:4] != CDR_HEADER_LE:
+        raise ValueError(f"not a little-endian XCDR1 sample (header {data[:4].hex()})")
+    return _LOWSTATE_CDR.unpack_from(data, 4)
+
+
+def fast_wire(msg: LowCmd_ | LowState_) -> None:
+    """Give this message object the fast encoder (the writer calls ``serialize``); the
+    bytes are the SDK's own (tests check), XCDR2 requests fall back to the SDK's path."""
+    layout = _LOWCMD_CDR if isinstance(msg, LowCmd_) else _LOWSTATE_CDR
+    values = lowcmd_values if isinstance(msg, LowCmd_) else lowstate_values
+    slow = msg.serialize
+
+    def serialize(
+        buffer: object = None, endianness: object = None, use_version_2: object = None
+    ) -> bytes:
+        if buffer is not None or endianness is not None or use_version_2:
+            return slow(buffer=buffer, endianness=endianness, use_version_2=use_version_2)
+        return CDR_HEADER_LE + layout.pack(*values(msg))
+
+    msg.serialize = serialize  # type: ignore[method-assign]
 
 
 def crc_ok(msg: LowCmd_ | LowState_) -> bool:
@@ -135,6 +196,7 @@ class LowCmdWriter:
     def __init__(self, leg_map: LegJointMap = LEG_MAP) -> None:
         self.map = leg_map
         self.cmd = new_lowcmd(leg_map.motor)
+        fast_wire(self.cmd)
 
     def fill(self, t: MotorTargets) -> LowCmd_:
         """The sealed message for ``t`` (the same object every call)."""
@@ -187,4 +249,23 @@ def read_lowstate(st: LowState_, leg_map: LegJointMap = LEG_MAP) -> LegReading:
         linear_acceleration=np.asarray(imu.accelerometer, dtype=float),
         foot_force=np.asarray(st.foot_force, dtype=float),
         tick=int(st.tick),
+    )
+
+
+def read_lowstate_values(v: tuple, leg_map: LegJointMap = LEG_MAP) -> LegReading:
+    """Our view of a decoded LowState_ (:func:`decode_lowstate`)."""
+    m0, k = ST_MOTOR0, ST_MOTOR_STRIDE
+    n = N_SDK_MOTORS
+    q = np.array(v[m0 + 1 : m0 + k * n : k], dtype=float)
+    dq = np.array(v[m0 + 2 : m0 + k * n : k], dtype=float)
+    tau = np.array(v[m0 + 4 : m0 + k * n : k], dtype=float)
+    return LegReading(
+        q=leg_map.position_from_sdk(q),
+        dq=leg_map.signed_from_sdk(dq),
+        tau=leg_map.signed_from_sdk(tau),
+        orientation=np.array(v[ST_IMU : ST_IMU + 4], dtype=float),
+        angular_velocity=np.array(v[ST_IMU + 4 : ST_IMU + 7], dtype=float),
+        linear_acceleration=np.array(v[ST_IMU + 7 : ST_IMU + 10], dtype=float),
+        foot_force=np.array(v[ST_FOOT : ST_FOOT + 4], dtype=float),
+        tick=int(v[ST_TICK]),
     )

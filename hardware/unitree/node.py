@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import struct
 import threading
 import time
 from dataclasses import dataclass, field
@@ -43,7 +44,12 @@ from quadmanip.common.service import Input, Output, Service, run_service
 from quadmanip.hardware.arm_driver import ArmDriver, SimulatedArmDriver
 from quadmanip.hardware.leg_safety import LegSafety, LegSafetyConfig, MotorTargets
 from quadmanip.hardware.unitree import dds
-from quadmanip.hardware.unitree.lowlevel import LowCmdWriter, crc_ok, read_lowstate
+from quadmanip.hardware.unitree.lowlevel import (
+    LowCmdWriter,
+    decode_lowstate,
+    lowstate_crc_ok,
+    read_lowstate_values,
+)
 from unitree_sdk2py.idl.unitree_go.msg.dds_ import LowCmd_, LowState_
 
 __all__ = ["UnitreeAdapter", "UnitreeAdapterConfig", "main"]
@@ -188,7 +194,7 @@ class UnitreeAdapter(Service):
         self.subscribe("sim/arm_trajectory", self._on_arm)
         self.subscribe("sim/gripper_command", self._on_gripper)
         self.subscribe("sim/estop", self._on_estop)
-        self._lowstate = dds.subscriber(
+        self._lowstate = dds.raw_subscriber(
             self.config.dds.lowstate_topic, LowState_, self._on_lowstate
         )
         self.log.info(
@@ -233,9 +239,16 @@ class UnitreeAdapter(Service):
         return self._wall0 + self._robot_ticks * period
 
     # ---------------------------------------------------------------- callbacks
-    def _on_lowstate(self, st: LowState_) -> None:
+    def _on_lowstate(self, data: bytes) -> None:
         """One robot state = one control tick (DDS listener thread)."""
-        if self.config.dds.check_crc and not crc_ok(st):
+        try:
+            values = decode_lowstate(data)
+        except (ValueError, struct.error) as exc:
+            self.bad_crc += 1
+            self.log.throttled("bad-state", 1.0, logging.WARNING, "undecodable robot state",
+                               error=str(exc), total=self.bad_crc)  # fmt: skip
+            return
+        if self.config.dds.check_crc and not lowstate_crc_ok(values):
             self.bad_crc += 1
             self.log.throttled(
                 "bad-crc",
@@ -245,7 +258,7 @@ class UnitreeAdapter(Service):
                 total=self.bad_crc,
             )
             return
-        r = read_lowstate(st)
+        r = read_lowstate_values(values)
         now = time.monotonic()
         stamp = self._stamp(r.tick)
         with self._lock:

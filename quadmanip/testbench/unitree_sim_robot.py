@@ -29,6 +29,7 @@ import argparse
 import dataclasses
 import logging
 import signal
+import struct
 import threading
 import time
 from typing import Any
@@ -64,7 +65,7 @@ class SimulatedUnitreeRobot:
 
     def __init__(self, args: argparse.Namespace) -> None:
         from quadmanip.hardware.unitree import dds
-        from quadmanip.hardware.unitree.lowlevel import new_lowstate
+        from quadmanip.hardware.unitree.lowlevel import fast_wire, new_lowstate
         from quadmanip.sim.node import load_world
         from unitree_sdk2py.idl.unitree_go.msg.dds_ import LowCmd_, LowState_
 
@@ -99,10 +100,12 @@ class SimulatedUnitreeRobot:
         dds.init_dds(args.domain, args.interface)
         self._state = new_lowstate()
         self._arm_state = new_lowstate()
+        fast_wire(self._state)
+        fast_wire(self._arm_state)
         self._pub = dds.publisher(args.lowstate_topic, LowState_)
         self._arm_pub = dds.publisher(args.arm_state_topic, LowState_)
-        self._sub = dds.subscriber(args.lowcmd_topic, LowCmd_, self._on_cmd)
-        self._arm_sub = dds.subscriber(args.arm_cmd_topic, LowCmd_, self._on_arm_cmd)
+        self._sub = dds.raw_subscriber(args.lowcmd_topic, LowCmd_, self._on_cmd)
+        self._arm_sub = dds.raw_subscriber(args.arm_cmd_topic, LowCmd_, self._on_arm_cmd)
         bus_cfg = load_bus_config()
         if args.connect:
             bus_cfg = dataclasses.replace(bus_cfg, connect=tuple(args.connect.split(",")))
@@ -117,47 +120,62 @@ class SimulatedUnitreeRobot:
         )
 
     # ---------------------------------------------------------------- DDS in
-    def _on_cmd(self, cmd: Any) -> None:
-        from quadmanip.hardware.unitree.lowlevel import crc_ok
+    def _decode(self, data: bytes) -> tuple | None:
+        """A LowCmd_'s values, None (counted, logged) when its CRC is wrong."""
+        from quadmanip.hardware.unitree.lowlevel import decode_lowcmd, lowcmd_crc_ok
 
-        if not crc_ok(cmd):
+        try:
+            v = decode_lowcmd(data)
+        except (ValueError, struct.error):
+            v = None
+        if v is None or not lowcmd_crc_ok(v):
             self.bad_crc += 1
             log.throttled("bad-crc", 1.0, logging.WARNING, "LowCmd with a bad CRC ignored",
                           total=self.bad_crc)  # fmt: skip
-            return
-        with self._lock:
-            self._cmd = cmd
+            return None
+        return v
 
-    def _on_arm_cmd(self, cmd: Any) -> None:
-        from quadmanip.hardware.unitree.lowlevel import crc_ok
-
-        if crc_ok(cmd):
+    def _on_cmd(self, data: bytes) -> None:
+        v = self._decode(data)
+        if v is not None:
             with self._lock:
-                self._arm_cmd = cmd
+                self._cmd = v
 
-    def _leg_command(self, cmd: Any, tick: int) -> msg.LegCommand:
+    def _on_arm_cmd(self, data: bytes) -> None:
+        v = self._decode(data)
+        if v is not None:
+            with self._lock:
+                self._arm_cmd = v
+
+    @staticmethod
+    def _motor(v: tuple, slot: int) -> tuple:
+        """(mode, q, dq, tau, kp, kd) of a motor slot in LowCmd_ values."""
+        from quadmanip.hardware.unitree.lowlevel import CMD_MOTOR0, CMD_MOTOR_STRIDE
+
+        i = CMD_MOTOR0 + CMD_MOTOR_STRIDE * slot
+        return v[i : i + 6]
+
+    def _leg_command(self, cmd: tuple, tick: int) -> msg.LegCommand:
         """The motor slots → the engine's leg arrays (by joint name, not the adapter's
         table). A motor not in servo mode gives no torque."""
         f = np.zeros((5, N_LEG_JOINTS))
         for slot, j in enumerate(self.leg_wire):
-            m = cmd.motor_cmd[slot]
-            if m.mode != 0x01:
+            mode, q, dq, tau, kp, kd = self._motor(cmd, slot)
+            if mode != 0x01:
                 continue
-            f[:, j] = (m.q, m.dq, m.kp, m.kd, m.tau)
+            f[:, j] = (q, dq, kp, kd, tau)
         return msg.LegCommand(
             stamp=self.engine.time, tick=tick, q_des=f[0], dq_des=f[1], kp=f[2], kd=f[3],
             tau_ff=f[4],
         )  # fmt: skip
 
-    def _apply_arm(self, cmd: Any) -> None:
+    def _apply_arm(self, cmd: tuple) -> None:
         eng = self.engine
-        ms = [cmd.motor_cmd[i] for i in range(len(ARM_JOINTS))]
-        if all(m.mode == 0x01 for m in ms):
+        ms = np.array([self._motor(cmd, i) for i in range(len(ARM_JOINTS))], dtype=float)
+        if np.all(ms[:, 0] == 0x01):
             # A servo that gets setpoints at arm_rate moves on between them with the
             # commanded velocity (then holds), instead of stepping.
-            q = np.array([m.q for m in ms])
-            dq = np.array([m.dq for m in ms])
-            tau = np.array([m.tau for m in ms])
+            _, q, dq, tau, kp, kd = ms.T
             dt = self._arm_dt
             eng.apply_arm_trajectory(
                 msg.ArmTrajectory(
@@ -165,14 +183,14 @@ class SimulatedUnitreeRobot:
                     t=np.array([eng.time, eng.time + dt]),
                     q=np.array([q, q + dq * dt]),
                     dq=np.array([dq, dq]),
-                    kp=np.array([m.kp for m in ms]),
-                    kd=np.array([m.kd for m in ms]),
+                    kp=kp,
+                    kd=kd,
                     tau_ff=np.array([tau, tau]),
                 )
             )
-        g = cmd.motor_cmd[ARM_GRIPPER_SLOT]
-        if g.mode == 0x01:
-            eng.apply_gripper_command(msg.GripperCommand(stamp=eng.time, gap=g.q, max_force=g.tau))
+        mode, gap, _, force, _, _ = self._motor(cmd, ARM_GRIPPER_SLOT)
+        if mode == 0x01:
+            eng.apply_gripper_command(msg.GripperCommand(stamp=eng.time, gap=gap, max_force=force))
 
     # --------------------------------------------------------------- DDS out
     def _publish(self, ls: msg.LowState, tick: int) -> None:
@@ -214,13 +232,12 @@ class SimulatedUnitreeRobot:
         t_ref, tick_ref = time.monotonic(), eng.tick
         last_log = time.monotonic()
         slips = 0
-        seen_cmd = None
         while not stop.is_set():
             with self._lock:
                 cmd, self._cmd = self._cmd, None
                 arm, self._arm_cmd = self._arm_cmd, None
             leg = None
-            if cmd is not None and cmd is not seen_cmd:
+            if cmd is not None:
                 leg = self._leg_command(cmd, eng.tick)
                 self.commands += 1
             if arm is not None:
