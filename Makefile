@@ -4,7 +4,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-all lint format bench venv clean
+.PHONY: demo test test-all lint format bench venv clean unitree
 
 venv: $(STAMP)
 
@@ -15,13 +15,40 @@ $(STAMP): pyproject.toml setup.py
 	$(PY) -m pip install -q -e '.[dev]'
 	@touch $(STAMP)
 
+# The Unitree SDK2 adapter's extra (docs/hardware.md): Debian's Cyclone DDS library, the
+# Python binding built against it (CYCLONEDDS_HOME: a prefix of links to where Debian
+# puts lib/, include/, bin/), and the SDK's Python package. The SDK package is installed
+# without its dependencies: it asks for opencv-python, which would clash with the
+# headless OpenCV the project uses, and it needs only cyclonedds and numpy.
+UNITREE_STAMP := $(VENV)/.unitree-installed
+DDS_HOME := $(abspath $(VENV))/cyclonedds-home
+DDS_LIB := /usr/lib/$(shell gcc -dumpmachine 2>/dev/null || echo x86_64-linux-gnu)
+
+unitree: $(UNITREE_STAMP)
+
+$(UNITREE_STAMP): $(STAMP)
+	@dpkg -s cyclonedds-dev >/dev/null 2>&1 || { \
+	  echo "[make] installing Debian's cyclonedds-dev (the DDS library of the Unitree SDK)"; \
+	  if [ "$$(id -u)" = 0 ]; then apt-get install -y -q cyclonedds-dev >/dev/null || \
+	    { apt-get update -q >/dev/null && apt-get install -y -q cyclonedds-dev >/dev/null; }; \
+	  else sudo apt-get install -y -q cyclonedds-dev; fi; }
+	@mkdir -p $(DDS_HOME)/lib $(DDS_HOME)/bin
+	@ln -sfn /usr/include $(DDS_HOME)/include
+	@ln -sf $(DDS_LIB)/libddsc.so $(DDS_LIB)/libcycloneddsidl.so $(DDS_HOME)/lib/
+	@ln -sfn $(DDS_LIB)/cmake $(DDS_HOME)/lib/cmake
+	@ln -sf /usr/bin/idlc $(DDS_HOME)/bin/
+	@echo "[make] building the Cyclone DDS Python binding and installing the Unitree SDK"
+	CYCLONEDDS_HOME=$(DDS_HOME) $(PY) -m pip install -q -e '.[dev,unitree]'
+	$(PY) -m pip install -q --no-deps unitree-sdk2py-dimos==1.0.3
+	@touch $(UNITREE_STAMP)
+
 demo: $(STAMP)
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(VENV)/bin/quadmanip demo
 
-test: $(STAMP)
+test: $(STAMP) $(UNITREE_STAMP)
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m pytest
 
-test-all: $(STAMP)
+test-all: $(STAMP) $(UNITREE_STAMP)
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m pytest -m ''
 
 lint: $(STAMP)

@@ -118,6 +118,7 @@ def _cmd_up(args: argparse.Namespace, extra: list[str]) -> int:
         connect=args.connect,
         robot=args.robot,
         config=args.config,
+        profile=args.profile,
     )
 
 
@@ -244,6 +245,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--connect", metavar="EP", help="with --no-router: an existing router")
     p.add_argument("--robot", metavar="NAME", help="robot name passed to every service")
     p.add_argument("--config", default="launch", metavar="FILE", help="launch config (TOML)")
+    p.add_argument(
+        "--profile",
+        metavar="NAME",
+        help="a [profiles.NAME] of the launch config: its services replace the list, its "
+        "service_args add to the base ones (e.g. unitree-sim: Unitree adapter + simulated robot)",
+    )
     p.set_defaults(func=_cmd_up)
 
     p = sub.add_parser(

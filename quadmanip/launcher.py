@@ -17,6 +17,7 @@ Guarantees:
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import signal
 import socket
@@ -37,6 +38,18 @@ EXIT_USAGE = 2
 
 
 @dataclass(frozen=True)
+class LaunchProfile:
+    """One ``[profiles.NAME]`` table of ``configs/launch.toml`` (``quadmanip up --profile``).
+
+    ``services`` replaces the base list (in start order); ``service_args`` is merged over
+    the base ``[service_args]``, one service's argument list replacing that service's.
+    """
+
+    services: tuple[str, ...] = ()
+    service_args: dict[str, list[str]] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
 class LaunchConfig:
     """Contents of ``configs/launch.toml``."""
 
@@ -46,6 +59,7 @@ class LaunchConfig:
     stop_grace_s: float = 2.0
     router_wait_s: float = 10.0
     service_args: dict[str, list[str]] = field(default_factory=dict)
+    profiles: dict[str, LaunchProfile] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not 0.0 < self.stop_grace_s <= 10.0:
@@ -58,6 +72,25 @@ class LaunchConfig:
 def load_launch_config(name_or_path: str = "launch") -> LaunchConfig:
     """Load the launch configuration (strict: unknown keys are errors)."""
     return load_config(LaunchConfig, name_or_path)
+
+
+def apply_profile(config: LaunchConfig, profile: str | None) -> LaunchConfig:
+    """``config`` with profile ``profile`` applied (``None``: unchanged).
+
+    Raises ValueError naming the known profiles if ``profile`` is not in ``config.profiles``.
+    """
+    if profile is None:
+        return config
+    try:
+        chosen = config.profiles[profile]
+    except KeyError:
+        known = ", ".join(sorted(config.profiles)) or "none defined"
+        raise ValueError(f"unknown profile {profile!r} (known profiles: {known})") from None
+    return dataclasses.replace(
+        config,
+        services=tuple(chosen.services),
+        service_args={**config.service_args, **chosen.service_args},
+    )
 
 
 def parse_endpoint(endpoint: str) -> tuple[str, str, int]:
@@ -375,12 +408,17 @@ def up(
     connect: str | None = None,
     robot: str | None = None,
     config: str = "launch",
+    profile: str | None = None,
     out: TextIO | None = None,
 ) -> int:
-    """Entry point of ``quadmanip up`` (flags override ``configs/launch.toml``)."""
+    """Entry point of ``quadmanip up`` (flags override ``configs/launch.toml``).
+
+    ``profile`` names a ``[profiles.NAME]`` table of the config: its services replace the
+    configured list and its service_args are merged over the base ones.
+    """
     out = out if out is not None else sys.stdout
     try:
-        cfg = load_launch_config(config)
+        cfg = apply_profile(load_launch_config(config), profile)
         if listen is not None:
             parse_endpoint(listen)
         if connect is not None:

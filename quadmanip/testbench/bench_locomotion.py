@@ -399,6 +399,166 @@ def run_zenoh(segment_s: float = SEGMENT_S) -> dict[str, Any]:
     }
 
 
+def run_adapter(
+    segment_s: float = SEGMENT_S, robot_rtf: float = 0.5, locomotion_args: tuple[str, ...] = ()
+) -> dict[str, Any]:
+    """Router + the simulated Unitree robot (DDS) + the adapter + locomotion processes;
+    this process commands and judges from the robot's ground truth (docs/hardware.md).
+
+    The simulated robot runs free in real time (at ``robot_rtf``, the real-time factor
+    this machine can hold for the three processes), so there is no push and no lockstep.
+    Ground-truth samples are windowed by the robot time at which they arrive here and
+    differentiated with their own stamps (the physics clock)."""
+    import random
+
+    from quadmanip.common import messages as m
+    from quadmanip.common.bus import Bus, BusConfig
+
+    ep = f"tcp/127.0.0.1:{_free_port()}"
+    domain = str(random.randint(100, 200))  # a private DDS domain for this run
+    env = {**os.environ, "QM_ZENOH_CONNECT": ep, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    logs = tempfile.TemporaryDirectory(prefix="qm-bench-loco-hw-")
+    procs: list[subprocess.Popen] = []
+
+    def start(name: str, *args: str) -> None:
+        fh = open(os.path.join(logs.name, f"{name}.log"), "w")  # noqa: SIM115
+        procs.append(
+            subprocess.Popen([sys.executable, *args], env=env, stdout=fh, stderr=subprocess.STDOUT)
+        )
+
+    def tail(name: str) -> str:
+        with open(os.path.join(logs.name, f"{name}.log")) as fh:
+            return fh.read()[-1500:]
+
+    gt: list[tuple[float, float, np.ndarray, float]] = []  # (arrival, stamp, pos, yaw)
+    clock: list[float] = []
+    status: list[Any] = []
+    health: list[Any] = []
+    lock = threading.Lock()
+    try:
+        start("router", "-m", "quadmanip.common.router", "--listen", ep)
+        time.sleep(1.0)
+        start(
+            "robot", "-m", "quadmanip.cli", "service", "unitree-sim-robot", "--domain", domain,
+            "--scenario", "paper-1", "--realtime-factor", str(robot_rtf),
+        )  # fmt: skip
+        start("adapter", "-m", "quadmanip.cli", "service", "unitree-adapter", "--domain", domain)
+        start("locomotion", "-m", "quadmanip.cli", "service", "locomotion", *locomotion_args)
+        cfg = BusConfig(mode="peer", connect=(ep,), listen=("tcp/127.0.0.1:0",), env_override=False)
+        with Bus(cfg) as bus:
+
+            def now() -> float:
+                with lock:
+                    return clock[-1] if clock else -1.0
+
+            def on_gt(msg: m.GroundTruthPoses) -> None:
+                arrival = now()
+                with lock:
+                    gt.append(
+                        (arrival, msg.stamp, np.array(msg.positions[0]),
+                         yaw_from_quat(msg.orientations[0]))
+                    )  # fmt: skip
+
+            def on_clock(msg: m.Clock) -> None:
+                with lock:
+                    clock.append(msg.stamp)
+
+            bus.subscribe("sim/gt/base", on_gt)
+            bus.subscribe("sim/clock", on_clock)
+            bus.subscribe("sim/status", status.append)
+            bus.subscribe("locomotion/health", health.append)
+            odom = bus.latest("locomotion/odometry")
+            pub_mode = bus.publisher("locomotion/mode")
+            pub_vel = bus.publisher("locomotion/cmd_vel")
+
+            def wait_until(t: float, every: Any = None, timeout: float = 300.0) -> None:
+                deadline = time.monotonic() + timeout
+                while now() < t:
+                    if time.monotonic() > deadline:
+                        raise TimeoutError(
+                            f"robot clock stuck at {now():.2f}\n{tail('robot')}\n"
+                            f"{tail('adapter')}\n{tail('locomotion')}"
+                        )
+                    if every is not None:
+                        every()
+                    time.sleep(0.02)
+
+            deadline = time.monotonic() + 120
+            while odom.get() is None or now() < 0:
+                if time.monotonic() > deadline:
+                    raise RuntimeError(
+                        f"no odometry\n{tail('robot')}\n{tail('adapter')}\n{tail('locomotion')}"
+                    )
+                pub_mode.publish(m.LocomotionMode(stamp=max(now(), 0.0), mode="stand"))
+                time.sleep(0.2)
+            wait_until(now() + 2.0)
+            w_walk0, s_walk0 = time.perf_counter(), now()
+            segs = []
+            for v in SEQUENCE_ZENOH:
+                t0 = now()
+                wait_until(
+                    t0 + segment_s,
+                    every=lambda v=v: pub_vel.publish(
+                        m.BodyVelocityCommand(stamp=now(), vx=v[0], vy=v[1], wz=v[2])
+                    ),
+                )
+                with lock:
+                    samples = [
+                        (g[1], g[2], g[3]) for g in gt if t0 + SETTLE_S <= g[0] <= t0 + segment_s
+                    ]
+                segs.append((v, _body_velocity_errors(samples, v)))
+                wait_until(now() + 0.7)
+            w_walk1, s_walk1 = time.perf_counter(), now()
+            with lock:
+                walk = [g for g in gt if g[0] >= s_walk0]
+            fell = any(g[2][2] < 0.15 for g in walk)
+            walked = float(
+                sum(
+                    np.linalg.norm(b[2][:2] - a[2][:2])
+                    for a, b in zip(walk, walk[1:], strict=False)
+                )
+            )
+            stats = [s for s in status if s.ticks > 0]
+            degraded = sum(1 for h in health if h.state != "ok")
+            reasons: dict[str, int] = {}
+            for h in health:
+                if h.state != "ok":
+                    key = h.reason.split("(")[0].split(":")[-1].strip()[:60]
+                    reasons[key] = reasons.get(key, 0) + 1
+    finally:
+        for p in procs[::-1]:
+            p.terminate()
+        for p in procs[::-1]:
+            try:
+                p.wait(5)
+            except subprocess.TimeoutExpired:
+                p.kill()
+        logs.cleanup()
+    all_err = np.concatenate([e for _, e in segs])
+    return {
+        "vel_rmse_mps": float(np.sqrt(np.mean(np.sum(all_err[:, :2] ** 2, axis=1)))),
+        "yaw_rate_rmse_radps": float(np.sqrt(np.mean(all_err[:, 2] ** 2))),
+        "segments": [
+            {
+                "command": list(v),
+                "vel_rmse_mps": float(np.sqrt(np.mean(np.sum(e[:, :2] ** 2, axis=1)))),
+                "yaw_rate_rmse_radps": float(np.sqrt(np.mean(e[:, 2] ** 2))),
+            }
+            for v, e in segs
+        ],
+        "walked_m": walked,
+        "falls": int(fell),
+        "robot_rtf_cap": robot_rtf,
+        "rtf": (s_walk1 - s_walk0) / (w_walk1 - w_walk0),
+        "stale_tick_fraction": sum(s.stale_ticks for s in stats)
+        / max(1, sum(s.ticks for s in stats)),
+        "cmd_age_ticks_p50": _pct([s.cmd_age_p50 for s in stats], 50),
+        "leg_timeouts": max((s.leg_timeouts for s in stats), default=0),
+        "health_not_ok_fraction": degraded / max(1, len(health)),
+        "health_reasons": dict(sorted(reasons.items(), key=lambda kv: -kv[1])[:6]),
+    }
+
+
 # Ordered so that the robot stays clear of the house's walls and the paper-1 objects.
 SEQUENCE_ZENOH: list[tuple[float, float, float]] = [
     (0.0, 0.3, 0.0),
@@ -433,8 +593,20 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--plot", help="PNG plot (default: next to the JSON)")
     ap.add_argument("--quick", action="store_true", help="1.5 s segments (smoke run)")
     ap.add_argument("--no-zenoh", action="store_true", help="skip the multi-process part")
+    ap.add_argument(
+        "--over",
+        choices=("sim", "unitree-sim"),
+        default="sim",
+        help="unitree-sim: the sequence over the Unitree adapter and a simulated DDS robot, "
+        "beside the same sequence over the sim directly (docs/hardware.md)",
+    )
+    ap.add_argument(
+        "--robot-rtf", type=float, default=0.5, help="real-time factor of the simulated robot"
+    )
     args = ap.parse_args(argv)
     seg = 1.5 if args.quick else SEGMENT_S
+    if args.over == "unitree-sim":
+        return _main_adapter(args, seg)
     _say("in-process run, tuned profile")
     tuned = run_in_process("tuned", record=True, segment_s=seg)
     _say(f"tuned: vel RMSE {tuned['vel_rmse_mps']:.3f} m/s, falls {tuned['falls']}")
@@ -483,6 +655,43 @@ def main(argv: list[str]) -> int:
     }
     Path(args.json).write_text(json.dumps(result, indent=2))
     _say(f"wrote {args.json} and {plot}")
+    print(json.dumps(summary, indent=2))
+    return 0
+
+
+def _main_adapter(args: argparse.Namespace, seg: float) -> int:
+    """``--over unitree-sim``: the sequence over the sim directly, then over the adapter."""
+    _say("over Zenoh: router + sim (lockstep) + locomotion")
+    direct = run_zenoh(segment_s=seg)
+    _say(f"sim directly: vel RMSE {direct['vel_rmse_mps']:.3f} m/s, falls {direct['falls']}")
+    _say(f"over the Unitree adapter: simulated DDS robot at rtf {args.robot_rtf}")
+    hw = run_adapter(segment_s=seg, robot_rtf=args.robot_rtf)
+    ratio = hw["vel_rmse_mps"] / max(direct["vel_rmse_mps"], 1e-9)
+    _say(f"adapter: vel RMSE {hw['vel_rmse_mps']:.3f} m/s ({ratio:.2f} x), falls {hw['falls']}")
+    summary = {
+        "vel_rmse_mps": hw["vel_rmse_mps"],
+        "yaw_rate_rmse_radps": hw["yaw_rate_rmse_radps"],
+        "sim_vel_rmse_mps": direct["vel_rmse_mps"],
+        "sim_yaw_rate_rmse_radps": direct["yaw_rate_rmse_radps"],
+        "vel_rmse_ratio": ratio,
+        "within_25_pct": bool(ratio <= 1.25),
+        "falls": hw["falls"] + direct["falls"],
+        "robot_rtf": hw["rtf"],
+        "stale_tick_fraction": hw["stale_tick_fraction"],
+        "leg_timeouts": hw["leg_timeouts"],
+        "load_average_1min": os.getloadavg()[0],
+    }
+    result = {
+        "summary": summary,
+        "over": "unitree-sim",
+        "adapter": hw,
+        "sim_direct": direct,
+        "machine": {"platform": platform.platform(), "cpus": os.cpu_count()},
+        "segment_s": seg,
+    }
+    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.json).write_text(json.dumps(result, indent=2))
+    _say(f"wrote {args.json}")
     print(json.dumps(summary, indent=2))
     return 0
 
