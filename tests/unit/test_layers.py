@@ -18,7 +18,7 @@ import pytest
 pytestmark = pytest.mark.unit
 
 ROOT = Path(__file__).resolve().parents[2]
-MAPPED = ("common", "services", "sim", "configs")  # setup.py's TOP_LEVEL
+MAPPED = ("common", "services", "sim", "hardware", "configs")  # setup.py's TOP_LEVEL
 LINT_IMPORTS = Path(sys.executable).with_name("lint-imports")
 
 
