@@ -14,10 +14,9 @@ from typing import Any
 from unitree_sdk2py.core.channel import (
     ChannelFactoryInitialize,
     ChannelPublisher,
-    ChannelSubscriber,
 )
 
-__all__ = ["init_dds", "publisher", "raw_subscriber", "subscriber"]
+__all__ = ["init_dds", "publisher", "raw_subscriber"]
 
 _initialised: tuple[int, str] | None = None
 _participant: Any = None
@@ -42,13 +41,6 @@ def publisher(topic: str, msg_type: type) -> ChannelPublisher:
     pub = ChannelPublisher(topic, msg_type)
     pub.Init()
     return pub
-
-
-def subscriber(topic: str, msg_type: type, handler: Callable[[Any], None]) -> ChannelSubscriber:
-    """A subscriber calling ``handler(sample)`` on the DDS listener thread."""
-    sub = ChannelSubscriber(topic, msg_type)
-    sub.Init(handler, 0)
-    return sub
 
 
 class RawSubscriber:

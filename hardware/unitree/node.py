@@ -359,7 +359,6 @@ class UnitreeAdapter(Service):
                 r = self._reading
                 if r is not None:
                     self._write(self.safety.damping(r.q, LegMode.ESTOP))
-                self._mode = LegMode.ESTOP
                 self.log.warning("emergency stop engaged: damping", reason=e.reason)
             else:
                 self.safety.reset_estop()

@@ -375,18 +375,8 @@ def run_zenoh(segment_s: float = SEGMENT_S) -> dict[str, Any]:
             except subprocess.TimeoutExpired:
                 p.kill()
         logs.cleanup()
-    all_err = np.concatenate([e for _, e in segs])
     return {
-        "vel_rmse_mps": float(np.sqrt(np.mean(np.sum(all_err[:, :2] ** 2, axis=1)))),
-        "yaw_rate_rmse_radps": float(np.sqrt(np.mean(all_err[:, 2] ** 2))),
-        "segments": [
-            {
-                "command": list(v),
-                "vel_rmse_mps": float(np.sqrt(np.mean(np.sum(e[:, :2] ** 2, axis=1)))),
-                "yaw_rate_rmse_radps": float(np.sqrt(np.mean(e[:, 2] ** 2))),
-            }
-            for v, e in segs
-        ],
+        **_sequence_rmse(segs),
         "walked_m": walked,
         "odom_drift_m": drift,
         "odom_drift_pct": 100.0 * drift / max(walked, 1e-9),
@@ -534,18 +524,8 @@ def run_adapter(
             except subprocess.TimeoutExpired:
                 p.kill()
         logs.cleanup()
-    all_err = np.concatenate([e for _, e in segs])
     return {
-        "vel_rmse_mps": float(np.sqrt(np.mean(np.sum(all_err[:, :2] ** 2, axis=1)))),
-        "yaw_rate_rmse_radps": float(np.sqrt(np.mean(all_err[:, 2] ** 2))),
-        "segments": [
-            {
-                "command": list(v),
-                "vel_rmse_mps": float(np.sqrt(np.mean(np.sum(e[:, :2] ** 2, axis=1)))),
-                "yaw_rate_rmse_radps": float(np.sqrt(np.mean(e[:, 2] ** 2))),
-            }
-            for v, e in segs
-        ],
+        **_sequence_rmse(segs),
         "walked_m": walked,
         "falls": int(fell),
         "robot_rtf_cap": robot_rtf,
@@ -569,6 +549,22 @@ SEQUENCE_ZENOH: list[tuple[float, float, float]] = [
     (-0.3, 0.0, 0.0),
     (0.3, 0.2, 0.5),
 ]
+
+
+def _rmse(err: np.ndarray) -> dict[str, float]:
+    """Planar velocity and yaw-rate RMSE of body-velocity errors (N, 3)."""
+    return {
+        "vel_rmse_mps": float(np.sqrt(np.mean(np.sum(err[:, :2] ** 2, axis=1)))),
+        "yaw_rate_rmse_radps": float(np.sqrt(np.mean(err[:, 2] ** 2))),
+    }
+
+
+def _sequence_rmse(segs: list) -> dict[str, Any]:
+    """The sequence's RMSE overall and per (command, errors) segment."""
+    return {
+        **_rmse(np.concatenate([e for _, e in segs])),
+        "segments": [{"command": list(v), **_rmse(e)} for v, e in segs],
+    }
 
 
 def _body_velocity_errors(samples: list, v: tuple[float, float, float]) -> np.ndarray:
