@@ -285,6 +285,11 @@ _TABLE: tuple[Topic, ...] = (
     row("locomotion", "odometry", m.Odometry, "sensor", "out", "estimated base state (odom)"),
     row("locomotion", "debug", m.LocomotionDebug, "sensor", "out", "gait, forces, MPC"),
     row("locomotion", "health", m.LocomotionHealth, "event", "out", "ok/degraded/tripped + why"),
+    # navigation
+    row("navigation", "map", m.OccupancyGrid, "event", "out", "occupancy map (on change, 0.2 Hz)"),
+    row("navigation", "pose", m.MapPose, "sensor", "out", "base pose in the map + map->odom"),
+    row("navigation", "path", m.Path, "event", "out", "the planned path (map frame)"),
+    row("navigation", "costmap", m.OccupancyGrid, "sensor", "out", "costmap (1 Hz)"),
 )
 
 
@@ -295,6 +300,9 @@ TABLE = KeyTable(
         action_row("manipulation", "grasp", m.GraspGoal, "grasp an object (Algorithm 6)"),
         action_row("manipulation", "place", m.PlaceGoal, "place the held object"),
         action_row("manipulation", "open_drawer", m.DrawerGoal, "pull a drawer open"),
+        action_row("navigation", "navigate_to", m.NavigateGoal, "walk to a map pose or place"),
+        action_row("navigation", "approach", m.ApproachGoal, "precise final approach (Alg. 5)"),
+        action_row("navigation", "explore", m.ExploreGoal, "map the house (frontiers)"),
     ),
 )
 """The product's key table."""

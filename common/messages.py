@@ -76,6 +76,14 @@ __all__ = [
     "example",
     "message_types",
     "registry",
+    "ApproachGoal",
+    "ExploreGoal",
+    "MapPose",
+    "NAV_OUTCOMES",
+    "NavigateGoal",
+    "NavigationResult",
+    "OccupancyGrid",
+    "Path",
 ]
 
 # Array sizes of the joint layout (legs + arm in wire order): common/joint_layout.py.
@@ -546,6 +554,140 @@ class DrawerGoal(Message):
         n = float(np.linalg.norm(self.pull_direction))
         if abs(n - 1.0) > 0.05:
             raise MessageError(f"DrawerGoal.pull_direction must be a unit vector, |d|={n:.3g}")
+
+
+# --------------------------------------------------------------------------- navigation
+
+NAV_OUTCOMES: tuple[str, ...] = ("reached", "blocked", "no_path", "cancelled", "rejected", "lost")
+
+
+def _check_heading(v: float, what: str) -> None:
+    if not (math.isfinite(v) and abs(v) <= 4.0 * math.pi):
+        raise MessageError(f"{what} must be a finite angle in radians, got {v}")
+
+
+@message("qm.OccupancyGrid", (1, 0))
+class OccupancyGrid(Message):
+    """A 2D occupancy grid (ROS's convention): ``data[row, col]`` is -1 unknown or the
+    occupancy probability in percent 0..100; row 0 is the lowest y. Cell (row, col) covers
+    ``origin[:2] + resolution * [col, row]`` .. ``+ resolution`` in ``frame`` (the map's
+    corner at ``origin``, rotated by ``origin[2]``, usually 0)."""
+
+    stamp: float
+    origin: np.ndarray = array("f8", (3,))
+    data: np.ndarray = array("i1", (None, None), max_elements=4_000_000)
+    resolution: float = 0.05
+    frame: str = string(max_len=64, default="map")
+
+    def _check(self) -> None:
+        if not (math.isfinite(self.resolution) and 0.005 <= self.resolution <= 1.0):
+            raise MessageError(
+                f"OccupancyGrid.resolution must be in [0.005, 1] m, got {self.resolution}"
+            )
+        if self.data.size and (int(self.data.min()) < -1 or int(self.data.max()) > 100):
+            raise MessageError("OccupancyGrid.data must hold -1 (unknown) or 0..100")
+
+
+@message("qm.MapPose", (1, 0))
+class MapPose(Message):
+    """Where navigation believes the base is in the ``map`` frame (x, y, yaw) with the
+    covariance of (x, y, yaw), and the map->odom correction (x, y, yaw) that takes the
+    odometry's pose into the map. ``status``: ``localized``; ``converging`` (spread
+    wider than the configured bound, e.g. after a global start); ``mapping`` (the pose of
+    the map being built); ``lost`` (no recent scan or odometry)."""
+
+    stamp: float
+    x: float
+    y: float
+    yaw: float
+    covariance: np.ndarray = array("f8", (3, 3))
+    map_to_odom: np.ndarray = array("f8", (3,), default=np.zeros(3))
+    status: str = string(
+        choices=("localized", "converging", "mapping", "lost"), default="localized"
+    )
+
+
+@message("qm.Path", (1, 0))
+class Path(Message):
+    """A planned path: poses (x, y, yaw) in ``frame``, start first."""
+
+    stamp: float
+    poses: np.ndarray = array("f8", (None, 3), max_elements=3 * 100_000)
+    frame: str = string(max_len=64, default="map")
+
+
+@message("qm.NavigateGoal", (1, 0))
+class NavigateGoal(Message):
+    """Walk to a pose in the map: ``place`` names a place of the map's places file (its
+    stand pose), else ``pose`` (x, y, yaw in ``frame``, ``map`` or ``odom``). Reached
+    within ``tolerance_xy`` (m) and ``tolerance_yaw`` (rad); ``ignore_yaw`` arrives facing
+    any way."""
+
+    stamp: float
+    place: str = string(max_len=128, default="")
+    pose: np.ndarray = array("f8", (3,), default=np.zeros(3))
+    frame: str = string(choices=("map", "odom"), default="map")
+    tolerance_xy: float = 0.05
+    tolerance_yaw: float = 0.05
+    ignore_yaw: bool = False
+
+    def _check(self) -> None:
+        for f in ("tolerance_xy", "tolerance_yaw"):
+            v = getattr(self, f)
+            if not (math.isfinite(v) and v > 0.0):
+                raise MessageError(f"NavigateGoal.{f} must be > 0, got {v}")
+
+
+@message("qm.ApproachGoal", (1, 0))
+class ApproachGoal(Message):
+    """A precise final approach (Algorithm 5's move to the probing area; standing square
+    to a drawer or a box): stand so that ``target`` (x, y in ``frame``: ``base`` at the
+    goal's stamp, or ``odom``) lies ``standoff`` m straight ahead of the base, facing
+    ``heading`` (rad, in ``frame``), or facing the target from where the robot is when
+    ``face_target``. Reached within ``tolerance_xy`` (m) and ``tolerance_yaw`` (rad)."""
+
+    stamp: float
+    target: np.ndarray = array("f8", (2,))
+    frame: str = string(choices=("base", "odom"), default="odom")
+    standoff: float = 0.5
+    heading: float = 0.0
+    face_target: bool = False
+    tolerance_xy: float = 0.01
+    tolerance_yaw: float = 0.0175
+
+    def _check(self) -> None:
+        if not (math.isfinite(self.standoff) and 0.0 <= self.standoff <= 3.0):
+            raise MessageError(f"ApproachGoal.standoff must be in [0, 3] m, got {self.standoff}")
+        _check_heading(self.heading, "ApproachGoal.heading")
+        for f in ("tolerance_xy", "tolerance_yaw"):
+            v = getattr(self, f)
+            if not (math.isfinite(v) and v > 0.0):
+                raise MessageError(f"ApproachGoal.{f} must be > 0, got {v}")
+
+
+@message("qm.ExploreGoal", (1, 0))
+class ExploreGoal(Message):
+    """Explore (mapping mode): walk to frontiers until none reachable is left or
+    ``max_time`` (s of robot time, 0 = no limit) has passed."""
+
+    stamp: float
+    max_time: float = 0.0
+
+
+@message("qm.NavigationResult", (1, 0))
+class NavigationResult(Message):
+    """How a navigation action ended (the ``result`` of its ActionResult): ``outcome`` one of
+    ``NAV_OUTCOMES``, the final pose (x, y, yaw) in the goal's frame, the remaining
+    position and heading errors, the distance walked and the time taken (robot time)."""
+
+    stamp: float
+    outcome: str = string(choices=NAV_OUTCOMES, default="reached")
+    reason: str = string(max_len=_MAX_TEXT, default="")
+    final_pose: np.ndarray = array("f8", (3,), default=np.zeros(3))
+    error_xy: float = 0.0
+    error_yaw: float = 0.0
+    distance: float = 0.0
+    duration: float = 0.0
 
 
 # --------------------------------------------------------------------------- sim test / ground truth
