@@ -50,11 +50,21 @@ __all__ = [
 
 
 class ActionFailed(Exception):
-    """Raise from an action's execute function to end the goal as ``failed``."""
+    """Raise from an action's execute function to end the goal as ``failed``; ``result``
+    (optional) travels in the ActionResult, e.g. where the robot stopped and why."""
+
+    def __init__(self, reason: str = "", result: Message | None = None) -> None:
+        super().__init__(reason)
+        self.result = result
 
 
 class ActionCanceled(Exception):
-    """Raise from an action's execute function to end the goal as ``canceled``."""
+    """Raise from an action's execute function to end the goal as ``canceled`` (with an
+    optional ``result`` message, as :class:`ActionFailed`)."""
+
+    def __init__(self, reason: str = "", result: Message | None = None) -> None:
+        super().__init__(reason)
+        self.result = result
 
 
 class GoalHandle:
@@ -220,9 +230,9 @@ class ActionServer:
         try:
             result = self._execute(handle)
         except ActionCanceled as exc:
-            status, reason = "canceled", str(exc) or "canceled"
+            status, reason, result = "canceled", str(exc) or "canceled", exc.result
         except ActionFailed as exc:
-            status, reason = "failed", str(exc) or "failed"
+            status, reason, result = "failed", str(exc) or "failed", exc.result
         except Exception as exc:  # noqa: BLE001
             status, reason = "failed", f"{type(exc).__name__}: {exc}"
             log.error(

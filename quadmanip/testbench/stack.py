@@ -36,6 +36,10 @@ QUIET_SIM = (
     "--set", "sensors.front_camera.rate=0", "--set", "sensors.gripper_camera.rate=0",
     "--set", "sensors.lidar.rate=0", "--set", "ground_truth.contacts_rate=0",
 )  # fmt: skip
+LIDAR_ONLY = (
+    "--set", "sensors.front_camera.rate=0", "--set", "sensors.gripper_camera.rate=0",
+    "--set", "ground_truth.contacts_rate=0",
+)  # fmt: skip
 STAND_HEIGHT_M = 0.25  # base height above which the robot counts as standing
 LEVEL_DEG = 0.5  # ... and level once tilted less than this
 SETTLE_MAX_S = 4.0  # sim seconds to wait for that
@@ -91,7 +95,9 @@ class StackRun:
     """Context manager: the three services on a private router for ``scenario``.
 
     ``log`` receives every child's output, prefixed by its name. ``extra_args`` adds
-    command-line arguments per service (e.g. ``{"sim": ["--set", "..."]}``).
+    command-line arguments per service (e.g. ``{"sim": ["--set", "..."]}``); ``services``
+    chooses which run (the sim and locomotion at least), ``sim_sensors`` the sim's sensor
+    settings (default: cameras and LiDAR off; :data:`LIDAR_ONLY` for navigation).
     """
 
     def __init__(
@@ -100,8 +106,12 @@ class StackRun:
         log: TextIO,
         extra_args: dict[str, Sequence[str]] | None = None,
         stand_timeout_s: float = 120.0,
+        services: Sequence[str] = SERVICES,
+        sim_sensors: Sequence[str] = QUIET_SIM,
     ) -> None:
         self.scenario = scenario
+        self.services = tuple(services)
+        self.sim_sensors = list(sim_sensors)
         self.log = log
         self.extra_args = {k: list(v) for k, v in (extra_args or {}).items()}
         self.stand_timeout_s = stand_timeout_s
@@ -115,7 +125,7 @@ class StackRun:
         self._tmp = tempfile.TemporaryDirectory(prefix="qm-stack-")
         scn = save_scenario_file(self.scenario, Path(self._tmp.name) / "scenario.toml")
         args = {
-            "sim": ["--lockstep", "--scenario", str(scn), *QUIET_SIM],
+            "sim": ["--lockstep", "--scenario", str(scn), *self.sim_sensors],
             "locomotion": ["--set", "node.start_mode=stand"],
             "manipulation": [],
         }
@@ -123,7 +133,10 @@ class StackRun:
             args[k] = args.get(k, []) + v
         endpoint = free_endpoint()
         self.launcher = Launcher(
-            listen=endpoint, services=SERVICES, service_args=args, out=self.log
+            listen=endpoint,
+            services=list(self.services),
+            service_args={k: v for k, v in args.items() if k in self.services},
+            out=self.log,
         )
         try:
             self.launcher.start()
@@ -157,8 +170,10 @@ class StackRun:
         self.payload = bus.latest("locomotion/payload")
         self.vel = bus.publisher("locomotion/cmd_vel")
         self.actions = {
-            n: bus.action_client("manipulation", n)
-            for n in (a.action for a in keys.ACTIONS.values() if a.service == "manipulation")
+            n: bus.action_client(a.service, n)
+            for a in keys.ACTIONS.values()
+            if a.service in self.services
+            for n in (a.action,)
         }
 
     def _check_alive(self) -> None:
@@ -172,7 +187,8 @@ class StackRun:
     def _wait_standing(self) -> None:
         assert self.bus is not None
         deadline = time.monotonic() + self.stand_timeout_s
-        while "manipulation" not in self.bus.alive_services(0.5) or self.base.get() is None:
+        last = self.services[-1]
+        while last not in self.bus.alive_services(0.5) or self.base.get() is None:
             self._check_alive()
             if time.monotonic() > deadline:
                 raise StackError("the services did not come up")

@@ -1,0 +1,270 @@
+"""The navigate-to behaviour: plan, follow, re-plan, recover, and say how it ended.
+
+A small state machine over the planner (:mod:`.global_planner`), the path follower
+(:mod:`.path_follower`) and the costmap (:mod:`.costmap`), stepped by the node at its
+control rate with the robot's map pose. It owns nothing but decisions:
+
+* ``follow``: re-plan every ``replan_period`` and at once when the path ahead crosses a
+  lethal cell (an obstacle that is not in the map); the follower regulates speed near
+  obstacles and stops when its collision check fires.
+* ``recover`` when the follower is blocked, no plan is found, or the robot makes no
+  progress for ``progress_window``: stop and let the obstacle layer see again, back up if
+  the space behind is free, turn in place, re-plan. A bounded number of attempts and an
+  overall deadline (``give_up_after``) end it ``blocked`` with the last reason: Nav2's
+  users most often report recoveries that never trigger or never end.
+* A goal the static map itself cannot reach ends ``no_path`` at once.
+
+Outcomes and reasons follow :data:`quadmanip.common.messages.NAV_OUTCOMES`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from quadmanip.services.navigation.costmap import LETHAL, Costmap
+from quadmanip.services.navigation.global_planner import (
+    PlannerConfig,
+    PlanResult,
+    path_headings,
+    plan_path,
+)
+from quadmanip.services.navigation.grid import Pose2, wrap
+from quadmanip.services.navigation.path_follower import (
+    FollowerConfig,
+    PathFollower,
+    costmap_collision_check,
+)
+
+__all__ = ["NavStep", "Navigator", "NavigatorConfig", "path_length"]
+
+
+@dataclass(frozen=True)
+class NavigatorConfig:
+    """Re-planning and recovery rules (times in s of robot time)."""
+
+    replan_period: float = 1.0
+    progress_window: float = 8.0  # s without getting progress_distance closer: recover
+    progress_distance: float = 0.1
+    max_recoveries: int = 3
+    recovery_wait: float = 1.0  # s standing still so the LiDAR refreshes the obstacles
+    backup_distance: float = 0.2  # m
+    backup_speed: float = 0.15  # m/s
+    turn_angle: float = math.radians(60)  # per recovery, alternating sides
+    turn_rate: float = 0.6  # rad/s
+    give_up_after: float = 25.0  # s from the first recovery: then ``blocked``
+    path_check_ahead: float = 2.0  # m of path ahead checked for new obstacles
+
+
+@dataclass(frozen=True)
+class NavStep:
+    """One control step: the body velocity command, the state (``active`` or an outcome),
+    the reason, the distance left along the path and a new path when it changed."""
+
+    vx: float
+    vy: float
+    wz: float
+    state: str
+    reason: str = ""
+    distance_left: float = math.inf
+    new_path: np.ndarray | None = None
+    mode: str = "follow"
+
+
+def path_length(path: np.ndarray) -> float:
+    """Length (m) of a polyline (N, 2)."""
+    return float(np.sum(np.hypot(*np.diff(path, axis=0).T))) if len(path) > 1 else 0.0
+
+
+@dataclass
+class _Goal:
+    pose: Pose2
+    tol_xy: float
+    tol_yaw: float
+    ignore_yaw: bool
+    t_start: float
+    path: np.ndarray | None = None
+    t_plan: float = -math.inf
+    best_distance: float = math.inf
+    t_progress: float = 0.0
+    recoveries: int = 0
+    t_first_recovery: float | None = None
+    recovery: list[tuple[str, float, float]] = field(default_factory=list)  # (kind, until, arg)
+    recovery_origin: Pose2 | None = None
+    last_reason: str = ""
+
+
+class Navigator:
+    """Goal in, velocity commands out (see the module docstring)."""
+
+    def __init__(
+        self,
+        config: NavigatorConfig | None = None,
+        follower: FollowerConfig | None = None,
+        planner: PlannerConfig | None = None,
+    ) -> None:
+        self.config = config or NavigatorConfig()
+        self.follower_config = follower or FollowerConfig()
+        self.planner_config = planner or PlannerConfig()
+        self.follower = PathFollower(self.follower_config)
+        self.goal: _Goal | None = None
+        self.plan_ms: list[float] = []
+
+    # ------------------------------------------------------------------ goals
+    def start(
+        self,
+        goal: Pose2,
+        now: float,
+        pose: Pose2,
+        costmap: Costmap,
+        static_costmap: Costmap | None = None,
+        tol_xy: float = 0.05,
+        tol_yaw: float = math.radians(3),
+        ignore_yaw: bool = False,
+    ) -> str:
+        """Check and accept a goal; "" when accepted, else the reason (``no_path: ...``
+        when even the static map has no way there)."""
+        if not all(math.isfinite(v) for v in goal):
+            return "rejected: the goal is not finite"
+        ref = static_costmap or costmap
+        if not ref.geometry.contains(goal[0], goal[1]):
+            return "rejected: the goal is off the map"
+        if not bool(ref.is_traversable(np.array([goal[:2]]))[0]):
+            c = int(ref.cost_at(np.array([goal[:2]]))[0])
+            what = "in an obstacle" if c == LETHAL else "too close to an obstacle or unknown"
+            return f"rejected: the goal is {what}"
+        if static_costmap is not None:
+            res = plan_path(static_costmap, pose[:2], goal[:2], self.planner_config)
+            if not res.ok:
+                return f"no_path: {res.reason} (on the map alone)"
+        self.goal = _Goal(goal, tol_xy, tol_yaw, ignore_yaw, now, t_progress=now)
+        self.follower.reset()
+        return ""
+
+    def cancel(self) -> None:
+        """Forget the goal (the node sends the stop)."""
+        self.goal = None
+
+    @property
+    def active(self) -> bool:
+        """Whether a goal is being pursued."""
+        return self.goal is not None
+
+    # ------------------------------------------------------------------ control
+    def _plan(self, g: _Goal, now: float, pose: Pose2, costmap: Costmap) -> PlanResult:
+        res = plan_path(costmap, pose[:2], g.pose[:2], self.planner_config)
+        self.plan_ms.append(res.ms)
+        g.t_plan = now
+        if res.ok:
+            g.path = res.path
+        else:
+            g.last_reason = res.reason
+        return res
+
+    def _path_blocked(self, g: _Goal, pose: Pose2, costmap: Costmap) -> bool:
+        if g.path is None or len(g.path) < 2:
+            return False
+        d = np.hypot(*(g.path - np.asarray(pose[:2])).T)
+        i0 = int(np.argmin(d))
+        ahead = g.path[i0:]
+        s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(ahead, axis=0).T))])
+        ahead = ahead[s <= self.config.path_check_ahead]
+        return bool(np.any(costmap.cost_at(ahead) == LETHAL))
+
+    def _end(self, state: str, reason: str, distance: float = math.inf) -> NavStep:
+        self.goal = None
+        return NavStep(0.0, 0.0, 0.0, state, reason, distance)
+
+    def _start_recovery(self, g: _Goal, now: float, pose: Pose2, costmap: Costmap) -> NavStep:
+        cfg = self.config
+        if g.t_first_recovery is None:
+            g.t_first_recovery = now
+        if g.recoveries >= cfg.max_recoveries:
+            return self._end("blocked", f"blocked: {g.last_reason} after {g.recoveries} recoveries")
+        g.recoveries += 1
+        sign = 1.0 if g.recoveries % 2 else -1.0
+        steps = [("wait", now + cfg.recovery_wait, 0.0)]
+        back = (
+            pose[0] - cfg.backup_distance * math.cos(pose[2]),
+            pose[1] - cfg.backup_distance * math.sin(pose[2]),
+            pose[2],
+        )
+        t = now + cfg.recovery_wait
+        if costmap.footprint_free(back):
+            t += cfg.backup_distance / cfg.backup_speed
+            steps.append(("backup", t, 0.0))
+        turned = (pose[0], pose[1], float(wrap(pose[2] + sign * cfg.turn_angle)))
+        if costmap.footprint_free(turned):
+            t += cfg.turn_angle / cfg.turn_rate
+            steps.append(("turn", t, sign))
+        g.recovery = steps
+        g.recovery_origin = pose
+        self.follower.reset()
+        return NavStep(0.0, 0.0, 0.0, "active", f"recovering ({g.recoveries}): {g.last_reason}")
+
+    def step(self, now: float, pose: Pose2, costmap: Costmap) -> NavStep:
+        """One control step at robot time ``now`` with the robot's map pose."""
+        g = self.goal
+        if g is None:
+            return NavStep(0.0, 0.0, 0.0, "idle")
+        cfg = self.config
+        if g.t_first_recovery is not None and now - g.t_first_recovery > cfg.give_up_after:
+            return self._end("blocked", f"blocked: {g.last_reason} for {cfg.give_up_after:.0f} s")
+        # ---- a recovery in progress
+        while g.recovery and now >= g.recovery[0][1]:
+            g.recovery.pop(0)
+        if g.recovery:
+            kind, _, arg = g.recovery[0]
+            if kind == "backup":
+                return NavStep(-cfg.backup_speed, 0.0, 0.0, "active", "recovery: backing up",
+                               mode="backup")  # fmt: skip
+            if kind == "turn":
+                return NavStep(0.0, 0.0, arg * cfg.turn_rate, "active", "recovery: turning",
+                               mode="turn")  # fmt: skip
+            return NavStep(0.0, 0.0, 0.0, "active", "recovery: waiting", mode="wait")
+        new_path = None
+        # ---- (re)plan
+        if (
+            g.path is None
+            or now - g.t_plan >= cfg.replan_period
+            or self._path_blocked(g, pose, costmap)
+        ):
+            res = self._plan(g, now, pose, costmap)
+            if not res.ok:
+                g.path = None
+                return self._start_recovery(g, now, pose, costmap)
+            new_path = res.path
+        assert g.path is not None
+        clearance = float(costmap.clearance(np.array([pose[:2]]))[0])
+        self.follower.collision = costmap_collision_check(costmap)
+        cmd = self.follower.command(
+            pose,
+            g.path,
+            None if g.ignore_yaw else g.pose[2],
+            clearance,
+            xy_tol=g.tol_xy,
+            yaw_tol=g.tol_yaw,
+        )
+        if cmd.done:
+            return self._end("reached", "reached", 0.0)
+        if cmd.blocked:
+            g.last_reason = "an obstacle in the way"
+            return self._start_recovery(g, now, pose, costmap)
+        # ---- progress watchdog
+        if cmd.distance_left < g.best_distance - cfg.progress_distance:
+            g.best_distance = cmd.distance_left
+            g.t_progress = now
+        elif now - g.t_progress > cfg.progress_window:
+            g.last_reason = f"no progress for {cfg.progress_window:.0f} s"
+            g.t_progress = now
+            return self._start_recovery(g, now, pose, costmap)
+        return NavStep(cmd.vx, cmd.vy, cmd.wz, "active", cmd.mode, cmd.distance_left,
+                       new_path, cmd.mode)  # fmt: skip
+
+    def path_poses(self) -> np.ndarray | None:
+        """The current path as poses (N, 3) with headings (for publishing)."""
+        g = self.goal
+        if g is None or g.path is None:
+            return None
+        return np.column_stack([g.path, path_headings(g.path)])

@@ -1,0 +1,651 @@
+"""The navigation service: map, localise, plan and walk (paper Sections 5.1-5.3).
+
+Inputs: ``sim/scan`` (2D LiDAR), ``locomotion/odometry``, ``locomotion/health``; never
+anything under ``sim/gt``. Outputs: ``locomotion/cmd_vel`` (navigation owns the body
+velocity while one of its actions runs, and only then), ``navigation/map`` (on change and
+every ``map_period``), ``navigation/pose`` (map pose, covariance, map->odom),
+``navigation/path``, ``navigation/costmap``.
+
+Two modes (``[node] mode``):
+
+* ``mapping``: online SLAM (:mod:`.slam`) builds the map from the robot start (map = odom
+  there); the ``explore`` action walks to frontiers (:mod:`.frontier`) until none
+  reachable is left. ``quadmanip map`` runs this and saves the map.
+* ``localization``: the saved map and its places file; an AMCL-style particle filter
+  (:mod:`.amcl`) from ``initial_pose`` or globally.
+
+Actions: ``navigate_to`` (a map pose or a named place), ``approach`` (the precise final
+approach, in the odom frame: it does not need the map) and ``explore``. One runs at a
+time; a goal while one runs is rejected ``busy``. Every algorithm runs in the control loop
+(``step``); action threads only hand goals in and wait for outcomes, so no algorithm
+state is shared between threads. When the inputs stop (no odometry or scan for
+``input_timeout``), locomotion's tripped, or a goal is cancelled, the robot is told to
+stand still and the goal ends with the reason.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from quadmanip.common import messages as m
+from quadmanip.common.actions import ActionCanceled, ActionFailed, GoalHandle
+from quadmanip.common.config import CONFIG_DIR
+from quadmanip.common.rotations import yaw_from_quat
+from quadmanip.common.service import Input, Output, Service, run_service
+from quadmanip.services.navigation.amcl import ParticleFilter
+from quadmanip.services.navigation.approach import ApproachController, approach_pose
+from quadmanip.services.navigation.config import NavigationConfig
+from quadmanip.services.navigation.costmap import Costmap
+from quadmanip.services.navigation.frontier import find_frontiers
+from quadmanip.services.navigation.global_planner import plan_path
+from quadmanip.services.navigation.grid import (
+    GridGeometry,
+    Pose2,
+    compose,
+    invert,
+    transform_points,
+    wrap,
+)
+from quadmanip.services.navigation.map_io import load_map
+from quadmanip.services.navigation.navigator import Navigator
+from quadmanip.services.navigation.places import Place, load_places, places_path_for
+from quadmanip.services.navigation.scan import ScanPoints, lidar_mount, scan_points
+from quadmanip.services.navigation.slam import OnlineSlam
+
+__all__ = ["NavigationNode", "main", "resolve_map_path"]
+
+
+def resolve_map_path(name: str) -> Path:
+    """A map YAML by path, else under configs/ (``maps/house.yaml``)."""
+    p = Path(name)
+    if p.is_file():
+        return p
+    q = CONFIG_DIR / name
+    return q if q.is_file() else p
+
+
+def _pose_of(od: m.Odometry) -> Pose2:
+    return (float(od.position[0]), float(od.position[1]), yaw_from_quat(od.orientation))
+
+
+@dataclass
+class _Job:
+    """A goal handed from an action thread to the control loop."""
+
+    kind: str  # navigate | approach | explore
+    goal: m.Message
+    done: threading.Event = field(default_factory=threading.Event)
+    cancel: bool = False
+    started: bool = False
+    outcome: str = ""
+    reason: str = ""
+    progress: float = 0.0
+    text: str = ""
+    t0: float = math.nan
+    start_pose: Pose2 | None = None
+    target: Pose2 | None = None  # navigate: map pose; approach: odom pose
+    total: float = 1.0
+    walked: float = 0.0
+    last_pose: Pose2 | None = None
+    final_pose: Pose2 = (0.0, 0.0, 0.0)
+    frame: str = "map"
+    # explore
+    blacklist: list[tuple[float, float]] = field(default_factory=list)
+    t_check: float = -math.inf
+    frontier_goal: tuple[float, float] | None = None
+    t_settle: float | None = None
+
+
+class NavigationNode(Service):
+    """Serves navigate_to, approach and explore; publishes the map and the map pose."""
+
+    name = "navigation"
+    config_type = NavigationConfig
+    inputs = (
+        Input("sim/scan", latest_only=True, doc="2D LiDAR"),
+        Input("locomotion/odometry", latest_only=True, doc="base pose in odom"),
+        Input("locomotion/health", latest_only=True, doc="tripped: stop"),
+    )
+    outputs = (
+        Output("locomotion/cmd_vel", doc="body velocity while an action runs"),
+        Output("navigation/map", doc="occupancy map"),
+        Output("navigation/pose", doc="map pose + map->odom"),
+        Output("navigation/path", doc="the planned path"),
+        Output("navigation/costmap", doc="costmap"),
+    )
+    actions = ("navigate_to", "approach", "explore")
+    loop_period = 0.05
+
+    # ------------------------------------------------------------------ setup
+    def setup(self) -> None:
+        """Loads the map (localisation) or starts an empty one (mapping); serves actions."""
+        cfg: NavigationConfig = self.config
+        nc = cfg.node
+        if nc.mode not in ("mapping", "localization"):
+            raise ValueError(f"[node] mode must be mapping or localization, not {nc.mode!r}")
+        self.mount = lidar_mount()
+        self.lock = threading.Lock()
+        self.job: _Job | None = None
+        self.navigator = Navigator(cfg.navigator, cfg.follower, cfg.planner)
+        self.approacher = ApproachController(cfg.approach)
+        self.places: dict[str, Place] = {}
+        self.slam: OnlineSlam | None = None
+        self.amcl: ParticleFilter | None = None
+        self.map_to_odom: Pose2 = (0.0, 0.0, 0.0)
+        if nc.mode == "mapping":
+            self.slam = OnlineSlam(cfg.slam)
+            self.map_grid = self.slam.occupancy()
+            self.map_geo = self.slam.geometry
+            self.costmap: Costmap | None = None
+            self.static_costmap: Costmap | None = None
+        else:
+            path = resolve_map_path(nc.map)
+            self.map_grid, self.map_geo = load_map(path)
+            pp = places_path_for(path)
+            if pp.is_file():
+                self.places = load_places(pp)
+            self.amcl = ParticleFilter(cfg.amcl, self.map_grid, self.map_geo)
+            if nc.global_localization:
+                self.amcl.initialize_global()
+            else:
+                x, y, yaw = nc.initial_pose
+                sx, sy, syaw = nc.initial_std
+                self.amcl.initialize((x, y, math.radians(yaw)), (sx, sy, math.radians(syaw)))
+            self.costmap = Costmap(cfg.costmap, self.map_grid, self.map_geo)
+            self.static_costmap = Costmap(cfg.costmap, self.map_grid, self.map_geo)
+            self.log.info("map loaded", map=str(path), places=len(self.places),
+                          cells=f"{self.map_geo.width}x{self.map_geo.height}")  # fmt: skip
+        self.map_version = 0
+        self.t_costmap_build = -math.inf
+        self.scan_cache = self.latest("sim/scan")
+        self.odom_cache = self.latest("locomotion/odometry")
+        self.health_cache = self.latest("locomotion/health")
+        self.pub_vel = self.publisher("locomotion/cmd_vel")
+        self.pub_map = self.publisher("navigation/map")
+        self.pub_pose = self.publisher("navigation/pose")
+        self.pub_path = self.publisher("navigation/path")
+        self.pub_costmap = self.publisher("navigation/costmap")
+        self.last_scan_stamp = -math.inf
+        self.last_odom_stamp = -math.inf
+        self.t_wall_odom = time.monotonic()
+        self.t_wall_scan = time.monotonic()
+        self.t_wall_map = -math.inf
+        self.t_wall_costmap = -math.inf
+        self.published_map_version = -1
+        self.inputs_ok = False
+        self.loc_ms: list[float] = []
+        self.status = "mapping" if self.slam else "converging"
+        for action in self.actions:
+            self.action_server(action, self._execute, accept=self._accept, policy="parallel")
+        self.set_state("running")
+
+    # ------------------------------------------------------------------ actions (threads)
+    def _accept(self, goal: m.Message) -> tuple[bool, str]:
+        with self.lock:
+            if self.job is not None:
+                return False, f"busy: {self.job.kind} running"
+        if isinstance(goal, m.NavigateGoal):
+            if self.slam is not None and goal.place:
+                return False, "rejected: named places need a saved map (mapping mode)"
+            if goal.place and goal.place not in self.places:
+                known = ", ".join(sorted(self.places)) or "none"
+                return False, f"rejected: unknown place {goal.place!r} (known: {known})"
+        elif isinstance(goal, m.ExploreGoal):
+            if self.slam is None:
+                return False, "rejected: explore needs mapping mode ([node] mode = mapping)"
+        elif not isinstance(goal, m.ApproachGoal):
+            return False, f"rejected: unsupported goal {type(goal).__name__}"
+        return True, ""
+
+    def _execute(self, handle: GoalHandle) -> m.Message | None:
+        goal = handle.goal
+        kind = {m.NavigateGoal: "navigate", m.ApproachGoal: "approach"}.get(type(goal), "explore")
+        job = _Job(kind, goal)
+        with self.lock:
+            if self.job is not None:
+                raise ActionFailed(f"busy: {self.job.kind} running")
+            self.job = job
+        last_text = None
+        while not job.done.wait(0.2):
+            if handle.cancel_requested:
+                job.cancel = True
+            if job.text and job.text != last_text:
+                handle.feedback(min(max(job.progress, 0.0), 1.0), job.text)
+                last_text = job.text
+        result = m.NavigationResult(
+            stamp=self._now(),
+            outcome=job.outcome,
+            reason=job.reason,
+            final_pose=job.final_pose,
+            error_xy=float(self._errors(job)[0]),
+            error_yaw=float(self._errors(job)[1]),
+            distance=job.walked,
+            duration=0.0 if math.isnan(job.t0) else max(self._now() - job.t0, 0.0),
+        )
+        if job.outcome == "reached":
+            return result
+        if job.outcome == "cancelled":
+            raise ActionCanceled(job.reason or "cancelled", result)
+        raise ActionFailed(job.reason or job.outcome, result)
+
+    # ------------------------------------------------------------------ helpers
+    def _now(self) -> float:
+        od = self.odom_cache.get()
+        return float(od.stamp) if od is not None else 0.0
+
+    def _errors(self, job: _Job) -> tuple[float, float]:
+        if job.target is None:
+            return 0.0, 0.0
+        p = job.final_pose
+        return (
+            math.hypot(job.target[0] - p[0], job.target[1] - p[1]),
+            abs(float(wrap(job.target[2] - p[2]))),
+        )
+
+    def _finish(self, job: _Job, outcome: str, reason: str, pose: Pose2 | None) -> None:
+        if pose is not None:
+            job.final_pose = pose
+        job.outcome, job.reason = outcome, reason
+        self.navigator.cancel()
+        self._stop_robot()
+        with self.lock:
+            self.job = None
+        self.log.info("goal ended", kind=job.kind, outcome=outcome, reason=reason)
+        job.done.set()
+
+    def _stop_robot(self) -> None:
+        self.pub_vel.publish(m.BodyVelocityCommand(stamp=self._now(), vx=0.0, vy=0.0, wz=0.0))
+
+    def _send(self, vx: float, vy: float, wz: float) -> None:
+        self.pub_vel.publish(m.BodyVelocityCommand(stamp=self._now(), vx=vx, vy=vy, wz=wz))
+
+    # ------------------------------------------------------------------ perception of self
+    def _scan_points(self, scan: m.LaserScan) -> ScanPoints:
+        return scan_points(
+            float(scan.stamp),
+            scan.ranges,
+            float(scan.angle_min),
+            float(scan.angle_increment),
+            float(scan.range_min),
+            float(scan.range_max),
+            self.mount,
+        )
+
+    def _localize(self, scan: m.LaserScan, odom: Pose2, now: float) -> None:
+        pts = self._scan_points(scan)
+        t0 = time.perf_counter()
+        if self.slam is not None:
+            est = self.slam.update(pts, odom)
+            self.map_to_odom = est.map_to_odom
+            if est.matched or self.slam.grid.scans <= 1:
+                self.map_version += 1
+        elif self.amcl is not None:
+            self.amcl.predict(odom)
+            self.amcl.update(pts)
+            pose, _ = self.amcl.estimate()
+            self.map_to_odom = compose(pose, invert(odom))
+            self.status = "localized" if self.amcl.converged else "converging"
+        self.loc_ms.append((time.perf_counter() - t0) * 1e3)
+        if self.slam is not None and now - self.t_costmap_build >= (
+            self.config.node.mapping_costmap_period
+        ):
+            self._build_mapping_costmap()
+            self.t_costmap_build = now
+        if self.costmap is not None and len(pts.points):
+            sensor = compose(compose(self.map_to_odom, odom), self.mount)
+            base = compose(self.map_to_odom, odom)
+            self.costmap.update_obstacles(transform_points(base, pts.points), sensor)
+
+    def _build_mapping_costmap(self) -> None:
+        """The costmap of the SLAM map's known area (+ a margin): the planner's graph
+        stays small however large the SLAM grid is."""
+        assert self.slam is not None
+        bounds = self.slam.grid.known_bounds()
+        if bounds is None:
+            return
+        geo = self.slam.geometry
+        pad = int(self.config.node.costmap_margin / geo.resolution)
+        r0, r1 = max(bounds[0] - pad, 0), min(bounds[1] + pad, geo.height)
+        c0, c1 = max(bounds[2] - pad, 0), min(bounds[3] + pad, geo.width)
+        occ = self.slam.occupancy()[r0:r1, c0:c1]
+        sub = GridGeometry(
+            geo.resolution,
+            geo.origin_x + c0 * geo.resolution,
+            geo.origin_y + r0 * geo.resolution,
+            c1 - c0,
+            r1 - r0,
+        )
+        self.costmap = Costmap(self.config.costmap, occ, sub)
+        self.static_costmap = self.costmap
+        self.map_grid, self.map_geo = occ, sub
+
+    # ------------------------------------------------------------------ loop
+    def step(self) -> None:
+        """Localise on a new scan, publish the pose, step the running job."""
+        od = self.odom_cache.get()
+        scan = self.scan_cache.get()
+        wall = time.monotonic()
+        if od is not None and float(od.stamp) > self.last_odom_stamp:
+            self.last_odom_stamp = float(od.stamp)
+            self.t_wall_odom = wall
+        if scan is not None and float(scan.stamp) > self.last_scan_stamp:
+            self.t_wall_scan = wall
+        timeout = self.config.node.input_timeout
+        lost = []
+        if od is None or wall - self.t_wall_odom > timeout:
+            lost.append("odometry")
+        if scan is None or wall - self.t_wall_scan > timeout:
+            lost.append("LiDAR scans")
+        if lost:
+            self._lost(f"lost: no {' or '.join(lost)} for {timeout:.1f} s")
+            return
+        assert od is not None and scan is not None
+        odom = _pose_of(od)
+        now = float(od.stamp)
+        if float(scan.stamp) > self.last_scan_stamp:
+            self.last_scan_stamp = float(scan.stamp)
+            if abs(float(scan.stamp) - now) <= self.config.node.odom_max_skew:
+                self._localize(scan, odom, now)
+        pose = compose(self.map_to_odom, odom)
+        self._publish_state(now, pose)
+        self._step_job(now, pose, odom)
+
+    def _lost(self, reason: str) -> None:
+        if self.inputs_ok:
+            self.log.warning("inputs lost: standing still", reason=reason)
+        self.inputs_ok = False
+        with self.lock:
+            job = self.job
+        if job is not None:
+            self._finish(job, "lost", reason, None)
+
+    def _publish_state(self, now: float, pose: Pose2) -> None:
+        self.inputs_ok = True
+        if self.amcl is not None:
+            _, cov = self.amcl.estimate()
+        else:
+            cov = np.diag([1e-4, 1e-4, 1e-4])
+        self.pub_pose.publish(
+            m.MapPose(
+                stamp=now,
+                x=pose[0],
+                y=pose[1],
+                yaw=pose[2],
+                covariance=cov,
+                map_to_odom=np.array(self.map_to_odom),
+                status=self.status,
+            )
+        )
+        wall = time.monotonic()
+        nc = self.config.node
+        changed = self.slam is not None and self.map_version != self.published_map_version
+        if wall - self.t_wall_map >= nc.map_period or (changed and wall - self.t_wall_map >= 1.0):
+            grid, geo = (
+                (self.slam.occupancy(), self.slam.geometry)
+                if self.slam is not None
+                else (self.map_grid, self.map_geo)
+            )
+            self.pub_map.publish(
+                m.OccupancyGrid(
+                    stamp=now,
+                    origin=np.array([geo.origin_x, geo.origin_y, 0.0]),
+                    data=grid,
+                    resolution=geo.resolution,
+                )
+            )
+            self.published_map_version = self.map_version
+            self.t_wall_map = wall
+        if self.costmap is not None and wall - self.t_wall_costmap >= nc.costmap_period:
+            c = self.costmap.cost
+            data = np.where(c == 255, -1, np.minimum(c.astype(np.int16) * 100 // 254, 100))
+            geo = self.costmap.geometry
+            self.pub_costmap.publish(
+                m.OccupancyGrid(
+                    stamp=now,
+                    origin=np.array([geo.origin_x, geo.origin_y, 0.0]),
+                    data=data.astype(np.int8),
+                    resolution=geo.resolution,
+                )
+            )
+            self.t_wall_costmap = wall
+
+    # ------------------------------------------------------------------ jobs
+    def _step_job(self, now: float, pose: Pose2, odom: Pose2) -> None:
+        with self.lock:
+            job = self.job
+        if job is None:
+            return
+        h = self.health_cache.get()
+        if h is not None and h.state == "tripped":
+            self._finish(job, "blocked", f"robot_down: locomotion tripped ({h.reason})", pose)
+            return
+        if job.cancel:
+            self._finish(job, "cancelled", "cancelled", odom if job.kind == "approach" else pose)
+            return
+        here = odom if job.kind == "approach" else pose
+        if job.last_pose is not None:
+            job.walked += math.hypot(here[0] - job.last_pose[0], here[1] - job.last_pose[1])
+        job.last_pose = here
+        if not job.started:
+            job.started = True
+            job.t0 = now
+            job.start_pose = here
+            if not self._start_job(job, now, pose, odom):
+                return
+        if job.kind == "approach":
+            self._step_approach(job, now, odom)
+        elif job.kind == "navigate":
+            self._step_navigate(job, now, pose)
+        else:
+            self._step_explore(job, now, pose)
+
+    def _start_job(self, job: _Job, now: float, pose: Pose2, odom: Pose2) -> bool:
+        g = job.goal
+        if isinstance(g, m.NavigateGoal):
+            if g.place:
+                target = self.places[g.place].stand
+            elif g.frame == "odom":
+                target = compose(self.map_to_odom, tuple(float(v) for v in g.pose))
+            else:
+                target = (float(g.pose[0]), float(g.pose[1]), float(g.pose[2]))
+            job.target = target
+            return self._start_navigation(job, now, pose, target, g.tolerance_xy,
+                                          g.tolerance_yaw, g.ignore_yaw)  # fmt: skip
+        if isinstance(g, m.ApproachGoal):
+            job.frame = "odom"
+            t = (float(g.target[0]), float(g.target[1]))
+            heading = float(g.heading)
+            if g.frame == "base":
+                t = compose(odom, (t[0], t[1], 0.0))[:2]
+                heading += odom[2]
+            if g.face_target:
+                heading = math.atan2(t[1] - odom[1], t[0] - odom[0])
+            job.target = approach_pose(t, float(g.standoff), heading)
+            job.total = max(math.hypot(job.target[0] - odom[0], job.target[1] - odom[1]), 1e-3)
+            self.approacher.reset()
+            return True
+        return True  # explore chooses its goals as it goes
+
+    def _start_navigation(self, job: _Job, now: float, pose: Pose2, target: Pose2,
+                          tol_xy: float, tol_yaw: float, ignore_yaw: bool) -> bool:  # fmt: skip
+        if self.costmap is None:
+            self._finish(job, "no_path", "no_path: no map yet", pose)
+            return False
+        why = self.navigator.start(target, now, pose, self.costmap, self.static_costmap,
+                                   tol_xy, tol_yaw, ignore_yaw)  # fmt: skip
+        if why:
+            outcome = "no_path" if why.startswith("no_path") else "rejected"
+            self._finish(job, outcome, why, pose)
+            return False
+        job.total = max(math.hypot(target[0] - pose[0], target[1] - pose[1]), 1e-3)
+        return True
+
+    def _step_navigate(self, job: _Job, now: float, pose: Pose2) -> None:
+        assert self.costmap is not None
+        st = self.navigator.step(now, pose, self.costmap)
+        if st.new_path is not None:
+            poses = self.navigator.path_poses()
+            if poses is not None:
+                self.pub_path.publish(m.Path(stamp=now, poses=poses))
+        if st.state == "active":
+            self._send(st.vx, st.vy, st.wz)
+            if math.isfinite(st.distance_left):
+                job.progress = 1.0 - st.distance_left / job.total
+                job.text = f"{st.distance_left:.2f} m left ({st.reason})"
+            else:
+                job.text = st.reason
+            return
+        if job.kind == "navigate":
+            self._finish(job, st.state, st.reason, pose)
+
+    def _step_approach(self, job: _Job, now: float, odom: Pose2) -> None:
+        g = job.goal
+        assert isinstance(g, m.ApproachGoal) and job.target is not None
+        if now - job.t0 > self.config.node.approach_timeout:
+            self._finish(job, "blocked", "blocked: the approach did not settle in time", odom)
+            return
+        vx, vy, wz, done = self.approacher.command(
+            odom, job.target, float(g.tolerance_xy), float(g.tolerance_yaw)
+        )
+        if done:
+            self._finish(job, "reached", "reached", odom)
+            return
+        if self._too_close(vx, vy):
+            self._finish(job, "blocked", "blocked: an obstacle touches the footprint", odom)
+            return
+        self._send(vx, vy, wz)
+        err = math.hypot(job.target[0] - odom[0], job.target[1] - odom[1])
+        job.progress = 1.0 - err / job.total
+        job.text = f"{err * 100:.1f} cm, {math.degrees(wrap(job.target[2] - odom[2])):.1f} deg left"
+
+    def _too_close(self, vx: float, vy: float) -> bool:
+        """Whether the last scan has a return against the trunk on the side it moves to."""
+        scan = self.scan_cache.get()
+        if scan is None:
+            return False
+        pts = self._scan_points(scan).points
+        c = self.config.costmap
+        gx = c.footprint_length / 2 + self.config.node.approach_guard
+        gy = c.footprint_width / 2 + self.config.node.approach_guard
+        inside = (np.abs(pts[:, 0]) < gx) & (np.abs(pts[:, 1]) < gy)
+        if not inside.any():
+            return False
+        p = pts[inside]
+        return bool(np.any(p[:, 0] * vx + p[:, 1] * vy > 0))
+
+    def _step_explore(self, job: _Job, now: float, pose: Pose2) -> None:
+        g = job.goal
+        assert isinstance(g, m.ExploreGoal) and self.slam is not None
+        ec = self.config.explore
+        if g.max_time > 0 and now - job.t0 > g.max_time:
+            self._finish(job, "reached", f"explore: time limit {g.max_time:.0f} s", pose)
+            return
+        if self.navigator.active:
+            if now - job.t_check >= ec.recheck_period:
+                job.t_check = now
+                if not self._frontier_still_open(job):
+                    self.navigator.cancel()
+                    self._stop_robot()
+                    return
+            st = self.navigator.step(now, pose, self.costmap) if self.costmap else None
+            if st is None:
+                return
+            if st.new_path is not None and (poses := self.navigator.path_poses()) is not None:
+                self.pub_path.publish(m.Path(stamp=now, poses=poses))
+            if st.state == "active":
+                self._send(st.vx, st.vy, st.wz)
+                return
+            if st.state != "reached" and job.frontier_goal is not None:
+                job.blacklist.append(job.frontier_goal)
+            job.frontier_goal = None
+            return
+        # choose the next frontier
+        if self.costmap is None:
+            return
+        goal = self._next_frontier(job, pose)
+        if goal is None:
+            self._finish(job, "reached", "explored: no reachable frontier left", pose)
+            return
+        job.frontier_goal = goal
+        job.t_check = now
+        why = self.navigator.start((goal[0], goal[1], 0.0), now, pose, self.costmap, None,
+                                   ec.goal_tolerance, math.pi, True)  # fmt: skip
+        if why:
+            job.blacklist.append(goal)
+            job.frontier_goal = None
+        else:
+            job.text = f"exploring: frontier at ({goal[0]:.2f}, {goal[1]:.2f})"
+
+    def _frontier_still_open(self, job: _Job) -> bool:
+        if job.frontier_goal is None or self.slam is None:
+            return False
+        fr = find_frontiers(self.slam.occupancy(), self.slam.geometry, self.config.frontier)
+        r = self.config.explore.goal_search_radius + 0.2
+        return any(
+            math.hypot(f.goal_xy[0] - job.frontier_goal[0], f.goal_xy[1] - job.frontier_goal[1]) < r
+            for f in fr
+        )
+
+    def _next_frontier(self, job: _Job, pose: Pose2) -> tuple[float, float] | None:
+        assert self.slam is not None and self.costmap is not None
+        ec = self.config.explore
+        fr = find_frontiers(self.slam.occupancy(), self.slam.geometry, self.config.frontier)
+        cands: list[tuple[float, tuple[float, float]]] = []
+        for f in fr:
+            goal = self._free_near(f.goal_xy)
+            if goal is None:
+                continue
+            if any(math.hypot(goal[0] - b[0], goal[1] - b[1]) < ec.blacklist_radius
+                   for b in job.blacklist):  # fmt: skip
+                continue
+            cands.append((math.hypot(goal[0] - pose[0], goal[1] - pose[1]), goal))
+        cands.sort()
+        for _, goal in cands[: ec.candidates]:
+            res = plan_path(self.costmap, pose[:2], goal, self.config.planner)
+            if res.ok:
+                return goal
+            job.blacklist.append(goal)
+        return None
+
+    def _free_near(self, xy: np.ndarray | tuple[float, float]) -> tuple[float, float] | None:
+        """The traversable cell nearest to ``xy`` within the search radius."""
+        assert self.costmap is not None
+        cm = self.costmap
+        geo = cm.geometry
+        n = int(self.config.explore.goal_search_radius / geo.resolution)
+        (r,), (c,) = geo.to_cell(np.array([xy], dtype=float))
+        rr, cc = np.mgrid[r - n : r + n + 1, c - n : c + n + 1]
+        rr, cc = rr.ravel(), cc.ravel()
+        ok = geo.inside(rr, cc)
+        rr, cc = rr[ok], cc[ok]
+        if not len(rr):
+            return None
+        centres = geo.cell_center(rr, cc)
+        trav = cm.is_traversable(centres)
+        if not trav.any():
+            return None
+        centres = centres[trav]
+        d = np.hypot(*(centres - np.asarray(xy, dtype=float)).T)
+        i = int(np.argmin(d))
+        return float(centres[i][0]), float(centres[i][1])
+
+    def teardown(self) -> None:
+        """Ends a running goal and leaves the robot standing still."""
+        with self.lock:
+            job = self.job
+        if job is not None and hasattr(self, "pub_vel"):
+            self._finish(job, "cancelled", "cancelled: navigation stopping", None)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``quadmanip service navigation``."""
+    return run_service(NavigationNode, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,192 @@
+"""Online 2D SLAM: odometry predicts, scan-to-map matching corrects, the grid grows.
+
+The paper builds its map with gmapping (Section 5.1, a Rao-Blackwellised particle filter).
+A single-hypothesis incremental scan-to-map matcher (Hector SLAM's scheme, without its
+multi-resolution maps) does the same job for a house-sized area walked once or twice: a
+360-degree scan every ~10 cm overlaps the map almost completely, so the map anchors each
+new pose and drift stays at the matcher's noise instead of growing with distance. It has
+no loop closure; that is its limit, accepted for rooms of this size.
+
+Frames: ``map`` is the ``odom`` frame at the first scan (map_to_odom starts at identity);
+the correction the matcher finds is kept as ``map_to_odom``, the way ROS publishes it, so a
+consumer composes it with the latest odometry between scans.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from quadmanip.services.navigation.distance_field import DistanceField
+from quadmanip.services.navigation.grid import (
+    GridGeometry,
+    Pose2,
+    compose,
+    invert,
+    transform_points,
+    wrap,
+)
+from quadmanip.services.navigation.occupancy_grid import LogOddsGrid, OccupancyConfig
+from quadmanip.services.navigation.scan import ScanPoints
+from quadmanip.services.navigation.scan_matcher import MatchResult, ScanMatcher, ScanMatcherConfig
+
+__all__ = ["OnlineSlam", "SlamConfig", "SlamEstimate"]
+
+
+@dataclass(frozen=True)
+class SlamConfig:
+    """Map size and the rules for trusting a match and growing the map."""
+
+    size_x: float = 30.0
+    size_y: float = 30.0
+    """the grid's extent (m): the robot does not know the house's size in advance"""
+    center: tuple[float, float] = (0.0, 0.0)
+    """where the grid is centred in the map frame (the odometry's start is usually 0, 0)"""
+    resolution: float = 0.05
+    occupancy: OccupancyConfig = field(default_factory=OccupancyConfig)
+    matcher: ScanMatcherConfig = field(default_factory=ScanMatcherConfig)
+    field_max_distance: float = 1.0
+    """distance field cap (m); beyond the matcher's largest cutoff it changes nothing"""
+    field_margin: float = 1.5
+    """the field covers the known cells plus this margin (m): a cropped EDT is cheaper"""
+    integrate_distance: float = 0.1
+    integrate_angle: float = math.radians(5.0)
+    """a scan is added to the map once the robot moved this far from the last one added"""
+    max_correction_xy: float = 0.3
+    max_correction_yaw: float = math.radians(10.0)
+    """a match moving the odometry prediction more than this is rejected"""
+    max_fit: float = 0.05
+    """a match whose inliers lie farther than this (m, mean) from the map is rejected"""
+    min_inlier_fraction: float = 0.5
+    min_points: int = 20
+    """scans with fewer returns are not matched"""
+    max_unmatched: int = 10
+    """after this many rejected matches in a row, scans are added at the odometry pose
+    anyway, so a robot walking into unmapped space keeps a map to match against"""
+
+
+@dataclass(frozen=True)
+class SlamEstimate:
+    """The robot's base pose in the map frame, the map -> odom correction, whether this
+    scan's match was accepted and the match's fit (m; inf when not matched)."""
+
+    pose: Pose2
+    map_to_odom: Pose2
+    matched: bool
+    fit: float
+
+
+class OnlineSlam:
+    """Incremental scan-to-map SLAM on a :class:`LogOddsGrid`."""
+
+    def __init__(self, config: SlamConfig | None = None, geometry: GridGeometry | None = None):
+        self.config = cfg = config or SlamConfig()
+        if geometry is None:
+            lo = (
+                round((cfg.center[0] - cfg.size_x / 2) / cfg.resolution) * cfg.resolution,
+                round((cfg.center[1] - cfg.size_y / 2) / cfg.resolution) * cfg.resolution,
+            )
+            geometry = GridGeometry.covering(
+                lo, (lo[0] + cfg.size_x, lo[1] + cfg.size_y), cfg.resolution
+            )
+        self.geometry = geometry
+        self.grid = LogOddsGrid(geometry, cfg.occupancy)
+        self.matcher = ScanMatcher(cfg.matcher)
+        self.pose: Pose2 = (0.0, 0.0, 0.0)
+        self.map_to_odom: Pose2 = (0.0, 0.0, 0.0)
+        self.field: DistanceField | None = None
+        self.last_match: MatchResult | None = None
+        self._last_integrated: Pose2 | None = None
+        self._unmatched = 0
+
+    # ------------------------------------------------------------------ update
+    def update(
+        self,
+        scan: ScanPoints,
+        odom_pose: Pose2,
+        no_return_angles: np.ndarray | None = None,
+    ) -> SlamEstimate:
+        """One scan with the odometry pose at its stamp. ``no_return_angles`` (LiDAR frame)
+        are passed to the grid for ``occupancy.max_free_range`` clearing."""
+        cfg = self.config
+        predicted = compose(self.map_to_odom, odom_pose)
+        if self._last_integrated is None:
+            self.pose = predicted
+            self._integrate(scan, no_return_angles)
+            return SlamEstimate(self.pose, self.map_to_odom, False, math.inf)
+
+        matched = False
+        fit = math.inf
+        if self.field is not None and len(scan.points) >= cfg.min_points:
+            res = self.matcher.match(scan.points, self.field, predicted)
+            self.last_match = res
+            fit = res.fit
+            delta = compose(invert(predicted), res.pose)
+            matched = (
+                math.hypot(delta[0], delta[1]) <= cfg.max_correction_xy
+                and abs(delta[2]) <= cfg.max_correction_yaw
+                and res.fit <= cfg.max_fit
+                and res.inlier_fraction >= cfg.min_inlier_fraction
+            )
+        if matched:
+            self.pose = res.pose
+            self.map_to_odom = compose(self.pose, invert(odom_pose))
+            self._unmatched = 0
+        else:
+            self.pose = predicted
+            self._unmatched += 1
+
+        if self._moved_enough() and (matched or self._unmatched >= cfg.max_unmatched):
+            self._integrate(scan, no_return_angles)
+        return SlamEstimate(self.pose, self.map_to_odom, matched, fit)
+
+    def _moved_enough(self) -> bool:
+        last = self._last_integrated
+        assert last is not None
+        return (
+            math.hypot(self.pose[0] - last[0], self.pose[1] - last[1])
+            >= self.config.integrate_distance
+            or abs(wrap(self.pose[2] - last[2])) >= self.config.integrate_angle
+        )
+
+    def _integrate(self, scan: ScanPoints, no_return_angles: np.ndarray | None) -> None:
+        sensor = compose(self.pose, scan.sensor)
+        self.grid.integrate(sensor, transform_points(self.pose, scan.points), no_return_angles)
+        self._last_integrated = self.pose
+        self.field = self._make_field()
+
+    def _make_field(self) -> DistanceField | None:
+        """The distance field over the known cells plus a margin (cropped: the EDT of a
+        30 m x 30 m grid costs ~10x that of a house)."""
+        bounds = self.grid.known_bounds()
+        if bounds is None:
+            return None
+        g = self.geometry
+        m = int(math.ceil(self.config.field_margin / g.resolution))
+        r0, r1 = max(bounds[0] - m, 0), min(bounds[1] + m, g.height)
+        c0, c1 = max(bounds[2] - m, 0), min(bounds[3] + m, g.width)
+        sub = GridGeometry(
+            g.resolution,
+            g.origin_x + c0 * g.resolution,
+            g.origin_y + r0 * g.resolution,
+            c1 - c0,
+            r1 - r0,
+        )
+        occ = self.grid.occupied_mask()[r0:r1, c0:c1]
+        return DistanceField(occ, sub, self.config.field_max_distance)
+
+    # ------------------------------------------------------------------ views
+    def occupancy(self) -> np.ndarray:
+        """The map as an int8 OccupancyGrid array on ``geometry`` (-1 unknown, 0..100)."""
+        return self.grid.occupancy()
+
+    def reset(self) -> None:
+        """Start a new map (the next scan defines the map frame again at its odometry)."""
+        self.grid.reset()
+        self.pose = (0.0, 0.0, 0.0)
+        self.map_to_odom = (0.0, 0.0, 0.0)
+        self.field = None
+        self.last_match = None
+        self._last_integrated = None
+        self._unmatched = 0

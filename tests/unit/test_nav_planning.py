@@ -1,0 +1,314 @@
+"""Navigation planning and control on the true floor plan: costmap layers, the global
+planner's routes and refusals, the path follower and the final approach closed around a
+kinematic model of a legged base (first-order velocity lag, noise, deadband)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from quadmanip.services.navigation.approach import (
+    ApproachConfig,
+    ApproachController,
+    approach_pose,
+)
+from quadmanip.services.navigation.costmap import (
+    INSCRIBED,
+    LETHAL,
+    Costmap,
+    CostmapConfig,
+)
+from quadmanip.services.navigation.global_planner import PlannerConfig, plan_path
+from quadmanip.services.navigation.grid import compose, wrap
+from quadmanip.services.navigation.path_follower import (
+    FollowerConfig,
+    PathFollower,
+    costmap_collision_check,
+    project_motion,
+)
+from quadmanip.testbench.floor_plan import simulate_scan, true_floor_plan
+
+DOORWAY = (5.0, 2.0)
+START = (0.8, 1.2)
+KITCHEN = (8.5, 2.8)
+
+
+@pytest.fixture(scope="module")
+def plan():
+    return true_floor_plan()
+
+
+def _costmap(plan, **kw) -> Costmap:
+    occ = np.where(plan.mask, 100, 0).astype(np.int8)
+    return Costmap(CostmapConfig(**kw), occ, plan.geometry)
+
+
+@pytest.fixture()
+def costmap(plan):
+    return _costmap(plan)
+
+
+def _scan_points(plan, pose, rng=None):
+    """A simulated scan's returns in the map frame (the LiDAR at the pose)."""
+    r = simulate_scan(plan, pose, rng=rng)
+    a = pose[2] - math.pi + np.arange(len(r)) * (2 * math.pi / len(r))
+    ok = r > 0
+    return np.stack([pose[0] + r[ok] * np.cos(a[ok]), pose[1] + r[ok] * np.sin(a[ok])], axis=1)
+
+
+# ---------------------------------------------------------------- costmap
+
+
+def test_costmap_layers_and_inflation(costmap):
+    cfg = costmap.config
+    assert costmap.cost[costmap.static_lethal].min() == LETHAL
+    # the inscribed ring: 0.15 m off the bottom wall's face (y = 0); a far one is free
+    assert costmap.cost_at(np.array([[2.0, 0.15]]))[0] == INSCRIBED
+    assert costmap.cost_at(np.array([[2.5, 2.0]]))[0] == 0
+    # the cost falls off with clearance, and clearance reads metres
+    ys = np.array([[3.0, 0.35], [3.0, 0.45], [3.0, 0.6]])
+    c = costmap.cost_at(ys).astype(int)
+    assert c[0] > c[1] > c[2] > 0
+    cl = costmap.clearance(ys)
+    assert np.all(np.diff(cl) > 0) and abs(cl[1] - 0.45) < 0.03  # the wall's face is y = 0
+    assert costmap.is_traversable(np.array([[2.5, 2.0]]))[0]
+    assert not costmap.is_traversable(np.array([[2.0, 0.15]]))[0]
+    # footprint: free in the open; in the doorway only along the passage, not across it
+    assert costmap.footprint_free((2.5, 2.0, 0.3))
+    assert costmap.footprint_free((5.0, 2.0, 0.0))
+    assert not costmap.footprint_free((0.2, 2.0, 0.0))
+    # 0.25 m from the middle wall's face (x = 4.95): the footprint (half width 0.185,
+    # half length 0.27) fits sideways-on but not facing the wall; clear at 0.28 m
+    assert costmap.footprint_free((4.95 - 0.25, 0.8, math.pi / 2))
+    assert not costmap.footprint_free((4.95 - 0.25, 0.8, 0.0))
+    assert costmap.footprint_free((4.95 - 0.28, 0.8, 0.0))
+    assert cfg.robot_radius > 0.5 * cfg.footprint_width
+
+
+def test_obstacle_layer_marks_and_clears(plan, costmap):
+    box = np.array([[3.0 + dx, 1.0 + dy] for dx in np.arange(0, 0.3, 0.04) for dy in (0.0, 0.28)])
+    box = np.vstack([box, [[3.0, 1.0 + dy] for dy in np.arange(0, 0.3, 0.04)]])
+    sensor = (2.0, 1.1, 0.0)
+    costmap.update_obstacles(box, sensor)
+    assert costmap.cost_at(np.array([[3.0, 1.1]]))[0] == LETHAL
+    assert not costmap.is_traversable(np.array([[2.85, 1.1]]))[0]
+    # blocked for the planner too
+    r = plan_path(costmap, (2.0, 1.1), (3.1, 1.1))
+    assert r.reason != "ok"
+    # the box went away: scans of the empty room from two places see through its cells
+    for pose in [(2.0, 1.1, 0.0), (3.5, 2.0, 0.3)]:
+        costmap.update_obstacles(_scan_points(plan, pose), pose)
+    assert not costmap.obstacles[costmap.geometry.to_cell(box)].any()
+    assert costmap.cost_at(np.array([[3.1, 1.1]]))[0] == 0
+    assert plan_path(costmap, (2.0, 1.1), (3.1, 1.1)).reason == "ok"
+
+
+def test_obstacle_update_rebuild_is_fast(plan, costmap):
+    pose = (2.0, 2.0, 0.0)
+    pts = _scan_points(plan, pose)
+    rng = np.random.default_rng(1)
+    ms, rebuild = [], []
+    import time
+
+    for _ in range(10):
+        jitter = pts + rng.normal(0, 0.01, pts.shape)
+        jitter = np.vstack([jitter, rng.uniform([2.5, 1.0], [4.0, 3.0], (5, 2))])
+        t0 = time.perf_counter()
+        costmap.update_obstacles(jitter, pose)
+        ms.append((time.perf_counter() - t0) * 1e3)
+        rebuild.append(costmap.last_rebuild_ms)
+    print(
+        f"obstacle update median {np.median(ms):.2f} ms, inflation rebuild {np.median(rebuild):.2f} ms"
+    )
+    assert np.median(ms) < 25.0
+
+
+# ---------------------------------------------------------------- planner
+
+
+def test_plan_through_the_doorway(costmap):
+    ms = [plan_path(costmap, START, KITCHEN).ms for _ in range(15)]
+    r = plan_path(costmap, START, KITCHEN)
+    assert r.reason == "ok" and r.path is not None
+    print(f"house plan: {r.length:.2f} m, median {np.median(ms):.1f} ms, {len(r.path)} points")
+    np.testing.assert_allclose(r.path[0], START)
+    np.testing.assert_allclose(r.path[-1], KITCHEN)
+    # through the doorway: crossing the middle wall's line within the opening
+    i = int(np.argmin(np.abs(r.path[:, 0] - 5.0)))
+    assert 1.55 < r.path[i, 1] < 2.45
+    # never through lethal or inscribed cells (sampled densely: the spacing is 5 cm)
+    assert costmap.cost_at(r.path).max() < INSCRIBED
+    assert np.max(np.hypot(*np.diff(r.path, axis=0).T)) <= 0.051
+    via = math.dist(START, DOORWAY) + math.dist(DOORWAY, KITCHEN)
+    assert r.length <= 1.15 * via
+    assert len(r.headings) == len(r.path)
+
+
+def test_plan_refusals(plan, costmap):
+    assert plan_path(costmap, START, (4.98, 0.8)).reason == "goal in an obstacle"
+    assert plan_path(costmap, START, (12.0, 2.0)).reason == "goal off the map"
+    assert plan_path(costmap, START, (-5.0, 2.0)).reason == "goal off the map"
+    ys = np.arange(1.3, 2.71, 0.03)
+    wall = np.stack([np.full_like(ys, 5.0), ys], axis=1)
+    costmap.update_obstacles(wall, (4.0, 2.0, 0.0))
+    assert plan_path(costmap, START, KITCHEN).reason == "no path"
+    assert plan_path(costmap, START, (2.5, 2.0)).reason == "ok"
+
+
+def test_start_near_a_wall_escapes(costmap):
+    start = (2.0, 0.12)  # after a grasp: the centre 0.07 m from the wall's surface
+    assert costmap.cost_at(np.array([start]))[0] >= INSCRIBED
+    r = plan_path(costmap, start, (3.0, 2.0))
+    assert r.reason == "ok"
+    c = costmap.cost_at(r.path)
+    out = int(np.argmax(c < INSCRIBED))  # once out of the inscribed zone it stays out
+    assert out * 0.05 < 0.15 and c[out:].max() < INSCRIBED and c.max() < LETHAL
+
+
+# ------------------------------------------------------------ kinematic sim
+
+
+class LeggedBase:
+    """Unicycle + strafe body with a first-order velocity lag, noise (the gait's creep)
+    and a command deadband, integrated at 200 Hz."""
+
+    def __init__(self, pose, lag=0.25, noise=0.01, deadband=0.0, deadband_wz=0.0, seed=0):
+        self.pose = tuple(pose)
+        self.v = np.zeros(3)
+        self.lag, self.noise = lag, noise
+        self.dead = np.array([deadband, deadband, deadband_wz])
+        self.rng = np.random.default_rng(seed)
+
+    def step(self, cmd, dt=0.05, sub=10):
+        cmd = np.asarray(cmd, dtype=float)
+        cmd = np.where(np.abs(cmd) >= self.dead, cmd, 0.0)
+        creep = self.rng.uniform(-self.noise, self.noise, 3)
+        h = dt / sub
+        a = 1.0 - math.exp(-h / self.lag)
+        for _ in range(sub):
+            self.v += a * (cmd - self.v)
+            vx, vy, wz = self.v + creep
+            self.pose = compose(self.pose, (vx * h, vy * h, wz * h))
+        return self.pose
+
+
+def test_follower_reaches_random_goals(costmap):
+    cfg = FollowerConfig()
+    follower = PathFollower(cfg, costmap_collision_check(costmap))
+    rng = np.random.default_rng(7)
+    base = LeggedBase((*START, 0.0), seed=3)
+    goals = []
+    while len(goals) < 10:
+        xy = rng.uniform([0.3, 0.3], [9.7, 3.7])
+        side = len(goals) % 2  # alternate rooms
+        if (xy[0] < 5.0) != (side == 0) or costmap.clearance(xy[None])[0] < 0.4:
+            continue
+        goals.append((float(xy[0]), float(xy[1]), float(rng.uniform(-math.pi, math.pi))))
+    results, worst_cost, dt = [], 0, 0.05
+    for goal in goals:
+        r = plan_path(costmap, base.pose[:2], goal[:2])
+        assert r.reason == "ok", r.reason
+        start_yaw = base.pose[2]
+        follower.reset()
+        t, done = 0.0, False
+        while t < 120.0:
+            pose = base.pose
+            cmd = follower.command(
+                pose, r.path, goal[2], float(costmap.clearance(np.array([pose[:2]]))[0])
+            )
+            assert not cmd.blocked
+            if cmd.done:
+                done = True
+                break
+            base.step((cmd.vx, cmd.vy, cmd.wz), dt)
+            worst_cost = max(worst_cost, int(costmap.cost_at(np.array([base.pose[:2]]))[0]))
+            t += dt
+        assert done, f"no arrival at {goal}"
+        for _ in range(10):  # zero commands: the lag and the creep settle
+            base.step((0.0, 0.0, 0.0), dt)
+        exy = math.dist(base.pose[:2], goal[:2])
+        eyaw = abs(wrap(base.pose[2] - goal[2]))
+        # turning: onto the path, and from its last heading to the goal's yaw
+        h = r.headings
+        turns = abs(wrap(h[0] - start_yaw)) + abs(wrap(goal[2] - h[-1]))
+        turn_time = turns / cfg.max_wz
+        budget = 1.3 * (r.length / cfg.max_vx + turn_time)
+        results.append((r.length, t, budget, exy, eyaw))
+        assert exy <= 0.05 and eyaw <= math.radians(3), (goal, exy, math.degrees(eyaw))
+    for length, t, budget, exy, eyaw in results:
+        print(
+            f"len {length:5.2f} m  t {t:5.2f} s  budget {budget:5.2f} s  "
+            f"err {exy * 100:.1f} cm {math.degrees(eyaw):.1f} deg"
+        )
+    print(f"worst cost at the robot's centre: {worst_cost}")
+    assert worst_cost < LETHAL
+    assert all(t <= b for _, t, b, _, _ in results)
+
+
+def test_collision_check_stops_before_an_obstacle(costmap):
+    check = costmap_collision_check(costmap)
+    pose = (4.95 - 0.45, 0.8, 0.0)  # facing the middle wall 0.45 m away
+    assert check(pose, project_motion(pose, 0.5, 0.0, 0.0, 0.5))
+    assert not check(pose, project_motion(pose, -0.3, 0.0, 0.0, 0.5))
+    # a path that runs into the wall (a stale plan): the robot stops short of it
+    follower = PathFollower(FollowerConfig(), check)
+    base = LeggedBase((3.5, 0.8, 0.0), seed=5)
+    path = np.stack([np.arange(3.5, 5.6, 0.05), np.full(42, 0.8)], axis=1)
+    blocked, worst = 0, 0
+    for _ in range(200):
+        pose = base.pose
+        cmd = follower.command(pose, path, None, float(costmap.clearance(np.array([pose[:2]]))[0]))
+        blocked += cmd.blocked
+        base.step((cmd.vx, cmd.vy, cmd.wz))
+        worst = max(worst, int(costmap.cost_at(np.array([base.pose[:2]]))[0]))
+    print(f"stopped at x = {base.pose[0]:.3f} m (wall face 4.95), worst cost {worst}")
+    assert blocked > 0 and worst < INSCRIBED
+    assert base.pose[0] > 4.5  # it did get near
+
+
+# ------------------------------------------------------------ final approach
+
+
+def test_approach_pose():
+    p = approach_pose((2.0, 1.0), 0.5, math.pi / 2)
+    np.testing.assert_allclose(p, (2.0, 0.5, math.pi / 2), atol=1e-12)
+
+
+def test_approach_controller_reaches_targets_precisely():
+    cfg = ApproachConfig()
+    rng = np.random.default_rng(11)
+    tol_xy, tol_yaw = 0.01, math.radians(1.0)
+    times = []
+    for k in range(8):
+        start = (0.0, 0.0, float(rng.uniform(-math.pi, math.pi)))
+        dist = rng.uniform(0.5, 1.5)
+        bearing = rng.uniform(-math.pi, math.pi)
+        goal = (
+            dist * math.cos(bearing),
+            dist * math.sin(bearing),
+            float(wrap(start[2] + rng.uniform(-1.0, 1.0))),
+        )
+        base = LeggedBase(start, deadband=0.02, deadband_wz=0.05, seed=k)
+        ctl = ApproachController(cfg)
+        t, done = 0.0, False
+        while t < 30.0:
+            vx, vy, wz, done = ctl.command(base.pose, goal, tol_xy, tol_yaw)
+            if done:
+                break
+            base.step((vx, vy, wz))
+            t += 0.05
+        assert done, f"target {goal} not reached"
+        exy = math.dist(base.pose[:2], goal[:2])
+        eyaw = abs(wrap(base.pose[2] - goal[2]))
+        times.append(t)
+        print(
+            f"approach {dist:.2f} m in {t:.2f} s: {exy * 1000:.1f} mm {math.degrees(eyaw):.2f} deg"
+        )
+        assert exy <= tol_xy and eyaw <= tol_yaw
+    assert max(times) < 20.0
+
+
+def test_planner_config_is_frozen():
+    with pytest.raises(AttributeError):
+        PlannerConfig().cost_weight = 1.0  # type: ignore[misc]
