@@ -28,6 +28,7 @@ BENCH_TARGETS: dict[str, str] = {
 }
 ROUTER_TARGET = "quadmanip.common.router:main"
 SIM_TOOLS: dict[str, str] = {"snapshot": "quadmanip.sim.snapshot:main"}
+MAP_TARGET = "quadmanip.testbench.map_house:main"
 
 EXIT_UNAVAILABLE = 3
 
@@ -130,6 +131,10 @@ def _cmd_demo(args: argparse.Namespace, extra: list[str]) -> int:
 
 def _cmd_bench(args: argparse.Namespace, extra: list[str]) -> int:
     return _dispatch(BENCH_TARGETS[args.target], [*args.args, *extra], f"bench {args.target}")
+
+
+def _cmd_map(args: argparse.Namespace, extra: list[str]) -> int:
+    return _dispatch(MAP_TARGET, [*args.args, *extra], "map")
 
 
 def _cmd_sim(args: argparse.Namespace, extra: list[str]) -> int:
@@ -270,6 +275,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("args", nargs=argparse.REMAINDER, help="benchmark arguments (try --help)")
     p.set_defaults(func=_cmd_bench)
 
+    p = sub.add_parser(
+        "map",
+        help="map the house: explore with navigation, save the map",
+        description="The robot explores the house (sim, locomotion, navigation in mapping "
+        "mode) and the map is saved in the map_server format (try --help after 'map').",
+    )
+    p.add_argument("args", nargs=argparse.REMAINDER, help="mapping arguments (try --help)")
+    p.set_defaults(func=_cmd_map)
+
     p = sub.add_parser("sim", help="simulator tools", description="Simulator tools.")
     p.add_argument("tool", choices=sorted(SIM_TOOLS), help="tool to run")
     p.add_argument("args", nargs=argparse.REMAINDER, help="tool arguments (try --help)")
@@ -302,6 +316,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Console entry point ``quadmanip``."""
     _die_with_parent()
     argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] == "map":  # every option after `map` is the mapping tool's own
+        return _dispatch(MAP_TARGET, argv[1:], "map")
     if len(argv) >= 3 and argv[0] == "service" and not argv[1].startswith("-"):
         if {"-h", "--help"} & set(argv[2:]):
             # `service NAME --help` shows the service's own options, not ours.

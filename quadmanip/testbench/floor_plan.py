@@ -4,9 +4,9 @@ GROUND TRUTH, for the navigation benchmark's scoring (map F1) and for the naviga
 algorithms' unit tests (synthetic scans). No service imports this.
 
 The plan is rasterised from the compiled empty house (the same MJCF the simulator runs):
-a cell is occupied when its centre lies inside the footprint of a box geom that reaches
-into the horizontal band the 2D LiDAR scans (its height standing, from the robot
-description, +/- ``band``). The LiDAR model marches each ray over that raster.
+a cell is occupied when it overlaps the footprint of a box geom that reaches into the
+horizontal band the 2D LiDAR scans (its height standing, from the robot description,
++/- ``band``). The LiDAR model marches each ray over that raster.
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ class FloorPlan:
 
 @lru_cache(maxsize=4)
 def true_floor_plan(
-    resolution: float = 0.05, height: float | None = None, band: float = 0.01
+    resolution: float = 0.05, height: float | None = None, band: float = 0.005
 ) -> FloorPlan:
     """The empty house's occupied cells in the LiDAR's band (world frame = the map frame
     of a map started at the world origin)."""
@@ -82,9 +82,12 @@ def true_floor_plan(
     rows, cols = np.mgrid[0 : geo.height, 0 : geo.width]
     centres = geo.cell_center(rows.ravel(), cols.ravel())
     mask = np.zeros(geo.height * geo.width, dtype=bool)
+    # a cell is occupied when the box overlaps it (a return on the box's face lands in the
+    # cell it enters, whose centre may lie just outside the box)
+    grow = 0.5 * resolution - 1e-6
     for c, R, hs in boxes:
         local = (centres - c) @ R  # into the box's frame (R's columns are its axes)
-        mask |= (np.abs(local[:, 0]) <= hs[0]) & (np.abs(local[:, 1]) <= hs[1])
+        mask |= (np.abs(local[:, 0]) <= hs[0] + grow) & (np.abs(local[:, 1]) <= hs[1] + grow)
     return FloorPlan(mask.reshape(geo.shape), geo)
 
 

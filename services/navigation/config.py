@@ -25,7 +25,7 @@ class NodeConfig:
 
     mode: str = "localization"
     map: str = "maps/house.yaml"
-    initial_pose: tuple[float, float, float] = (0.0, 0.0, 0.0)  # x, y (m), yaw (deg) in the map
+    initial_pose: tuple[float, float, float] = (0.8, 1.2, 0.0)  # x, y (m), yaw (deg) in the map
     initial_std: tuple[float, float, float] = (0.1, 0.1, 5.0)  # m, m, deg
     global_localization: bool = False
     input_timeout: float = 1.0  # wall s without odometry or scans: stop, goals end "lost"
@@ -36,6 +36,10 @@ class NodeConfig:
     costmap_margin: float = 1.0  # m around the known area of the SLAM map
     approach_timeout: float = 30.0  # s (robot time)
     approach_guard: float = 0.03  # m: scan points this close to the trunk stop an approach
+    # scans are used only while the robot stands or walks upright (not while it stands up)
+    min_base_height: float = 0.22  # m, odometry's base height
+    max_tilt: float = 0.2  # rad
+    min_hit_height: float = 0.05  # m: lower returns are the floor seen by a tilted scan
 
 
 @dataclass(frozen=True)

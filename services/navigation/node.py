@@ -35,7 +35,7 @@ import numpy as np
 from quadmanip.common import messages as m
 from quadmanip.common.actions import ActionCanceled, ActionFailed, GoalHandle
 from quadmanip.common.config import CONFIG_DIR
-from quadmanip.common.rotations import yaw_from_quat
+from quadmanip.common.rotations import quat_to_mat, yaw_from_quat
 from quadmanip.common.service import Input, Output, Service, run_service
 from quadmanip.services.navigation.amcl import ParticleFilter
 from quadmanip.services.navigation.approach import ApproachController, approach_pose
@@ -54,7 +54,12 @@ from quadmanip.services.navigation.grid import (
 from quadmanip.services.navigation.map_io import load_map
 from quadmanip.services.navigation.navigator import Navigator
 from quadmanip.services.navigation.places import Place, load_places, places_path_for
-from quadmanip.services.navigation.scan import ScanPoints, lidar_mount, scan_points
+from quadmanip.services.navigation.scan import (
+    ScanPoints,
+    lidar_height_above_base,
+    lidar_mount,
+    scan_points,
+)
 from quadmanip.services.navigation.slam import OnlineSlam
 
 __all__ = ["NavigationNode", "main", "resolve_map_path"]
@@ -129,6 +134,9 @@ class NavigationNode(Service):
         if nc.mode not in ("mapping", "localization"):
             raise ValueError(f"[node] mode must be mapping or localization, not {nc.mode!r}")
         self.mount = lidar_mount()
+        self.mount_z = lidar_height_above_base()
+        self.attitude = np.eye(3)
+        self.base_height = 0.0
         self.lock = threading.Lock()
         self.job: _Job | None = None
         self.navigator = Navigator(cfg.navigator, cfg.follower, cfg.planner)
@@ -195,6 +203,13 @@ class NavigationNode(Service):
             if goal.place and goal.place not in self.places:
                 known = ", ".join(sorted(self.places)) or "none"
                 return False, f"rejected: unknown place {goal.place!r} (known: {known})"
+            static = self.static_costmap if self.slam is None else None
+            if static is not None and not goal.place and goal.frame == "map":
+                x, y = float(goal.pose[0]), float(goal.pose[1])
+                if not static.geometry.contains(x, y):
+                    return False, "rejected: the goal is off the map"
+                if not bool(static.is_traversable(np.array([[x, y]]))[0]):
+                    return False, "rejected: the goal is in an obstacle or too close to one"
         elif isinstance(goal, m.ExploreGoal):
             if self.slam is None:
                 return False, "rejected: explore needs mapping mode ([node] mode = mapping)"
@@ -274,6 +289,9 @@ class NavigationNode(Service):
             float(scan.range_min),
             float(scan.range_max),
             self.mount,
+            self.attitude,
+            self.base_height + self.mount_z,
+            self.config.node.min_hit_height,
         )
 
     def _localize(self, scan: m.LaserScan, odom: Pose2, now: float) -> None:
@@ -349,11 +367,24 @@ class NavigationNode(Service):
         now = float(od.stamp)
         if float(scan.stamp) > self.last_scan_stamp:
             self.last_scan_stamp = float(scan.stamp)
-            if abs(float(scan.stamp) - now) <= self.config.node.odom_max_skew:
+            if abs(float(scan.stamp) - now) <= self.config.node.odom_max_skew and self._upright(od):
                 self._localize(scan, odom, now)
         pose = compose(self.map_to_odom, odom)
         self._publish_state(now, pose)
         self._step_job(now, pose, odom)
+
+    def _upright(self, od: m.Odometry) -> bool:
+        """Whether the trunk stands high and level enough for its scan to be a plan view
+        (not while lying or standing up); keeps its attitude for the floor filter."""
+        R = quat_to_mat(od.orientation)
+        yaw = math.atan2(R[1, 0], R[0, 0])
+        c, s = math.cos(yaw), math.sin(yaw)
+        # the attitude without its heading: base to a level, heading-aligned frame
+        self.attitude = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]]) @ R
+        self.base_height = float(od.position[2])
+        nc = self.config.node
+        tilt = math.acos(max(-1.0, min(1.0, float(R[2, 2]))))
+        return self.base_height >= nc.min_base_height and tilt <= nc.max_tilt
 
     def _lost(self, reason: str) -> None:
         if self.inputs_ok:

@@ -12,7 +12,17 @@ from dataclasses import dataclass
 import numpy as np
 from quadmanip.services.navigation.grid import Pose2, transform_points
 
-__all__ = ["ScanPoints", "lidar_mount", "scan_points"]
+__all__ = ["ScanPoints", "lidar_height_above_base", "lidar_mount", "scan_points"]
+
+
+def lidar_height_above_base() -> float:
+    """Height (m) of the LiDAR above the base origin, from the robot description."""
+    import mujoco
+    from quadmanip.common import robot_description as rd
+
+    model = rd.load_mujoco_model()
+    sid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, rd.LIDAR_SITE)
+    return float(model.site_pos[sid][2])
 
 
 def lidar_mount() -> Pose2:
@@ -52,11 +62,26 @@ def scan_points(
     range_min: float,
     range_max: float,
     mount: Pose2 = (0.0, 0.0, 0.0),
+    attitude: np.ndarray | None = None,
+    height: float = 0.0,
+    min_hit_height: float = 0.05,
 ) -> ScanPoints:
-    """The returns (ranges within [range_min, range_max], finite) as base-frame points."""
+    """The returns (ranges within [range_min, range_max], finite) as base-frame points.
+
+    With the trunk's ``attitude`` (3x3 rotation, base to a gravity-aligned frame) and the
+    LiDAR's ``height`` above the floor, returns that hit lower than ``min_hit_height`` are
+    dropped: when the trunk pitches or rolls a few degrees the tilted scan plane reaches
+    the floor a few metres out, and those returns are not obstacles.
+    """
     r = np.asarray(ranges, dtype=float)
     a = angle_min + angle_increment * np.arange(len(r))
     ok = np.isfinite(r) & (r >= max(range_min, 1e-6)) & (r <= range_max)
+    if attitude is not None and height > 0.0:
+        R = np.asarray(attitude, dtype=float)
+        # beam direction in the base frame (the mount's yaw), its vertical component
+        ab = a + mount[2]
+        rise = R[2, 0] * np.cos(ab) + R[2, 1] * np.sin(ab)
+        ok &= height + np.where(np.isfinite(r), r, 0.0) * rise >= min_hit_height
     r, a = r[ok], a[ok]
     local = np.stack([r * np.cos(a), r * np.sin(a)], axis=1)
     return ScanPoints(float(stamp), transform_points(mount, local), r, a, mount, float(range_max))

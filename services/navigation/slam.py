@@ -7,6 +7,13 @@ multi-resolution maps) does the same job for a house-sized area walked once or t
 new pose and drift stays at the matcher's noise instead of growing with distance. It has
 no loop closure; that is its limit, accepted for rooms of this size.
 
+Scans are matched against the returns of the scans added so far, rasterised at 2 cm
+(``match_resolution``), not against the 5 cm log-odds grid that is published as the map.
+In the simulator's house the log-odds walls came out dotted (grazing beams clear wall
+cells as often as returns mark them) and the match slid along them: 0.44 m RMS error over
+a recorded exploration run. Against the raw returns the same recording gives 6 mm RMS,
+14 mm at worst (docs/navigation.md).
+
 Frames: ``map`` is the ``odom`` frame at the first scan (map_to_odom starts at identity);
 the correction the matcher finds is kept as ``map_to_odom``, the way ROS publishes it, so a
 consumer composes it with the latest odometry between scans.
@@ -15,7 +22,7 @@ consumer composes it with the latest odometry between scans.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from quadmanip.services.navigation.distance_field import DistanceField
@@ -46,6 +53,10 @@ class SlamConfig:
     resolution: float = 0.05
     occupancy: OccupancyConfig = field(default_factory=OccupancyConfig)
     matcher: ScanMatcherConfig = field(default_factory=ScanMatcherConfig)
+    match_resolution: float = 0.02
+    """cell size (m) of the hit raster the scans are matched against (see the module doc)"""
+    match_min_hits: int = 1
+    """returns a cell of the hit raster needs to count as a surface for matching"""
     field_max_distance: float = 1.0
     """distance field cap (m); beyond the matcher's largest cutoff it changes nothing"""
     field_margin: float = 1.5
@@ -92,7 +103,15 @@ class OnlineSlam:
             )
         self.geometry = geometry
         self.grid = LogOddsGrid(geometry, cfg.occupancy)
-        self.matcher = ScanMatcher(cfg.matcher)
+        x0, y0, x1, y1 = geometry.extent
+        self.hit_geometry = GridGeometry.covering((x0, y0), (x1, y1), cfg.match_resolution)
+        self.hits = np.zeros(self.hit_geometry.shape, dtype=np.uint16)
+        self._hit_bounds: tuple[int, int, int, int] | None = None
+        self.matcher = ScanMatcher(
+            replace(cfg.matcher, surface_offset=0.0)
+            if cfg.matcher.surface_offset is None
+            else cfg.matcher
+        )
         self.pose: Pose2 = (0.0, 0.0, 0.0)
         self.map_to_odom: Pose2 = (0.0, 0.0, 0.0)
         self.field: DistanceField | None = None
@@ -152,20 +171,33 @@ class OnlineSlam:
 
     def _integrate(self, scan: ScanPoints, no_return_angles: np.ndarray | None) -> None:
         sensor = compose(self.pose, scan.sensor)
-        self.grid.integrate(sensor, transform_points(self.pose, scan.points), no_return_angles)
+        pts = transform_points(self.pose, scan.points)
+        self.grid.integrate(sensor, pts, no_return_angles)
+        hg = self.hit_geometry
+        r, c = hg.to_cell(pts)
+        ok = hg.inside(r, c)
+        r, c = r[ok], c[ok]
+        if len(r):
+            np.add.at(self.hits, (r, c), 1)
+            np.minimum(self.hits, 10_000, out=self.hits)
+            b = (int(r.min()), int(r.max()) + 1, int(c.min()), int(c.max()) + 1)
+            hb = self._hit_bounds
+            self._hit_bounds = b if hb is None else (
+                min(hb[0], b[0]), max(hb[1], b[1]), min(hb[2], b[2]), max(hb[3], b[3])
+            )  # fmt: skip
         self._last_integrated = self.pose
         self.field = self._make_field()
 
     def _make_field(self) -> DistanceField | None:
-        """The distance field over the known cells plus a margin (cropped: the EDT of a
-        30 m x 30 m grid costs ~10x that of a house)."""
-        bounds = self.grid.known_bounds()
-        if bounds is None:
+        """The distance to the nearest return of the scans added so far, on the fine hit
+        raster over their extent plus a margin (cropped: an EDT over the whole 30 m grid
+        would cost far more than the house's)."""
+        if self._hit_bounds is None:
             return None
-        g = self.geometry
+        g = self.hit_geometry
         m = int(math.ceil(self.config.field_margin / g.resolution))
-        r0, r1 = max(bounds[0] - m, 0), min(bounds[1] + m, g.height)
-        c0, c1 = max(bounds[2] - m, 0), min(bounds[3] + m, g.width)
+        r0, r1 = max(self._hit_bounds[0] - m, 0), min(self._hit_bounds[1] + m, g.height)
+        c0, c1 = max(self._hit_bounds[2] - m, 0), min(self._hit_bounds[3] + m, g.width)
         sub = GridGeometry(
             g.resolution,
             g.origin_x + c0 * g.resolution,
@@ -173,8 +205,8 @@ class OnlineSlam:
             c1 - c0,
             r1 - r0,
         )
-        occ = self.grid.occupied_mask()[r0:r1, c0:c1]
-        return DistanceField(occ, sub, self.config.field_max_distance)
+        surface = self.hits[r0:r1, c0:c1] >= self.config.match_min_hits
+        return DistanceField(surface, sub, self.config.field_max_distance)
 
     # ------------------------------------------------------------------ views
     def occupancy(self) -> np.ndarray:
@@ -184,6 +216,8 @@ class OnlineSlam:
     def reset(self) -> None:
         """Start a new map (the next scan defines the map frame again at its odometry)."""
         self.grid.reset()
+        self.hits[:] = 0
+        self._hit_bounds = None
         self.pose = (0.0, 0.0, 0.0)
         self.map_to_odom = (0.0, 0.0, 0.0)
         self.field = None

@@ -1,0 +1,178 @@
+"""The navigation service over a real Zenoh router, closed-loop with a kinematic robot.
+
+`quadmanip service navigation` runs as a child process on a map of the true floor plan;
+the test process plays the robot (:class:`quadmanip.testbench.kinematic_robot.KinematicRobot`:
+it obeys navigation's body velocity commands with a lag and a creep, and publishes
+odometry and simulated LiDAR scans). Success is judged from the kinematic robot's true
+pose. The full-physics run through the doorway is in ``test_navigation_stack.py``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+from quadmanip.common import messages as m
+from quadmanip.services.navigation.map_io import save_map
+from quadmanip.services.navigation.places import Place, places_path_for, save_places
+from quadmanip.testbench.floor_plan import FloorPlan, true_floor_plan
+from quadmanip.testbench.kinematic_robot import KinematicRobot
+from scipy import ndimage
+
+pytestmark = pytest.mark.integration
+
+START = (0.8, 1.2, 0.0)
+
+
+def _house_map(plan: FloorPlan) -> np.ndarray:
+    """The floor plan as a map: occupied 100, the house's inside free, outside unknown."""
+    labels, _ = ndimage.label(~plan.mask)
+    (r,), (c,) = plan.geometry.to_cell(np.array([START[:2]]))
+    occ = np.full(plan.mask.shape, -1, dtype=np.int8)
+    occ[labels == labels[r, c]] = 0
+    occ[plan.mask] = 100
+    return occ
+
+
+@pytest.fixture(scope="module")
+def map_yaml(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    plan = true_floor_plan()
+    stem = tmp_path_factory.mktemp("map") / "house"
+    paths = save_map(stem, _house_map(plan), plan.geometry)
+    save_places(
+        places_path_for(paths["yaml"]),
+        [Place("kitchen_spot", "search_floor", (6.5, 2.6, math.pi / 2), (6.5, 3.0, 0.0))],
+    )
+    return paths["yaml"]
+
+
+def _wait(cond: Callable[[], bool], timeout: float, what: str, procs=()) -> None:
+    deadline = time.monotonic() + timeout
+    while not cond():
+        if time.monotonic() > deadline:
+            logs = "\n".join("\n".join(p.lines[-15:]) for p in procs)
+            raise TimeoutError(f"{what}\n{logs}")
+        time.sleep(0.05)
+
+
+@pytest.fixture
+def nav(zenoh_router, spawn, bus_factory, map_yaml):
+    """(bus, robot, navigation process, plan) with navigation running on the map."""
+    plan = true_floor_plan()
+    bus = bus_factory(zenoh_router)
+    robot = KinematicRobot(bus, plan, START).start()
+    proc = spawn(
+        "-m", "quadmanip.cli", "service", "navigation",
+        "--set", f"node.map={map_yaml}",
+        "--set", f"node.initial_pose=[{START[0]}, {START[1]}, 0.0]",
+        endpoint=zenoh_router,
+    )  # fmt: skip
+    pose = bus.latest("navigation/pose")
+    _wait(lambda: pose.get() is not None, 60.0, "no navigation pose", (proc,))
+    yield bus, robot, proc, plan
+    robot.stop()
+
+
+def _send(bus, action: str, goal: m.Message):
+    h = bus.action_client("navigation", action).send_goal(goal, timeout=10.0)
+    return h
+
+
+def _result(h, proc, timeout: float = 90.0) -> m.ActionResult:
+    deadline = time.monotonic() + timeout
+    while True:
+        r = h.result(timeout=1.0)
+        if r is not None:
+            return r
+        if time.monotonic() > deadline:
+            raise TimeoutError("no result\n" + "\n".join(proc.lines[-20:]))
+
+
+def test_walks_through_the_doorway_and_reports(nav):
+    bus, robot, proc, _ = nav
+    path = bus.latest("navigation/path")
+    grid = bus.latest("navigation/map")
+    goal = (7.5, 2.8, math.pi / 2)
+    h = _send(bus, "navigate_to", m.NavigateGoal(stamp=0.0, pose=np.array(goal)))
+    assert h.accepted, h.reason
+    r = _result(h, proc)
+    assert r.status == "succeeded", (r.reason, proc.lines[-20:])
+    err_xy, err_yaw = robot.error_to(goal)
+    assert err_xy <= 0.05 and err_yaw <= math.radians(3.0), (err_xy, math.degrees(err_yaw))
+    assert robot.contacts == 0
+    res = r.result
+    assert isinstance(res, m.NavigationResult) and res.outcome == "reached"
+    assert res.distance > 6.5  # it walked through the doorway, not through the wall
+    assert h.feedback and any("m left" in f.text for f in h.feedback)
+    p = path.get()
+    assert p is not None and len(p.poses) > 10
+    assert np.any(np.abs(p.poses[:, 0] - 5.0) < 0.1)  # the path crosses the middle wall ...
+    crossing = p.poses[np.argmin(np.abs(p.poses[:, 0] - 5.0))]
+    assert 1.5 < crossing[1] < 2.5  # ... in the doorway
+    g = grid.get()
+    assert g is not None and g.data.shape[0] > 50
+    # standing still afterwards: the last command navigation sent is zero
+    time.sleep(0.3)
+    last = robot.last_cmd
+    assert last is not None and (last.vx, last.vy, last.wz) == (0.0, 0.0, 0.0)
+
+
+def test_named_place_and_bad_goals(nav):
+    bus, robot, proc, _ = nav
+    h = _send(bus, "navigate_to", m.NavigateGoal(stamp=0.0, place="sofa_top"))
+    assert not h.accepted and "unknown place 'sofa_top'" in h.reason and "kitchen_spot" in h.reason
+    # a goal inside a wall and one off the map are rejected with the reason
+    for pose, why in (((4.98, 0.7, 0.0), "in an obstacle"), ((30.0, 0.0, 0.0), "off the map")):
+        h = _send(bus, "navigate_to", m.NavigateGoal(stamp=0.0, pose=np.array(pose)))
+        assert not h.accepted and why in h.reason, h.reason
+    with pytest.raises(m.MessageError):
+        m.NavigateGoal(stamp=0.0, pose=np.array([math.nan, 0.0, 0.0]))
+    # a named place is walked to
+    h = _send(bus, "navigate_to", m.NavigateGoal(stamp=0.0, place="kitchen_spot"))
+    assert h.accepted, h.reason
+    r = _result(h, proc)
+    assert r.status == "succeeded", r.reason
+    assert robot.error_to((6.5, 2.6, math.pi / 2))[0] <= 0.05
+
+
+def test_cancel_and_lost_inputs_stop_the_robot(nav):
+    bus, robot, proc, _ = nav
+    client = bus.action_client("navigation", "navigate_to")
+    h = client.send_goal(m.NavigateGoal(stamp=0.0, pose=np.array([3.5, 2.0, 0.0])), timeout=10)
+    assert h.accepted, h.reason
+    _wait(lambda: abs(robot.vel[0]) > 0.1 or abs(robot.vel[2]) > 0.2, 20.0, "not moving", (proc,))
+    assert h.cancel()
+    r = _result(h, proc, 20.0)
+    assert r.status == "canceled", r.reason
+    time.sleep(0.5)
+    assert math.hypot(robot.vel[0], robot.vel[1]) < 0.03
+    # odometry stops mid-walk: navigation stops the robot and ends the goal "lost"
+    h = client.send_goal(m.NavigateGoal(stamp=0.0, pose=np.array([3.5, 2.0, 0.0])), timeout=10)
+    assert h.accepted, h.reason
+    _wait(lambda: abs(robot.vel[0]) > 0.1 or abs(robot.vel[2]) > 0.2, 20.0, "not moving", (proc,))
+    robot.publish_odometry = False
+    r = _result(h, proc, 20.0)
+    assert r.status == "failed" and r.reason.startswith("lost: no odometry"), r.reason
+    assert r.result.outcome == "lost"
+    last = robot.last_cmd
+    assert last is not None and (last.vx, last.vy, last.wz) == (0.0, 0.0, 0.0)
+    robot.publish_odometry = True
+
+
+def test_precise_approach_in_the_odom_frame(nav):
+    bus, robot, proc, _ = nav
+    # a point 1.2 m ahead and 0.3 m to the left, to stand 0.5 m from, facing +x
+    target = robot.odom_of((START[0] + 1.2, START[1] + 0.3, 0.0))
+    goal = m.ApproachGoal(stamp=0.0, target=np.array(target[:2]), frame="odom", standoff=0.5,
+                          heading=0.0)  # fmt: skip
+    h = _send(bus, "approach", goal)
+    assert h.accepted, h.reason
+    r = _result(h, proc, 60.0)
+    assert r.status == "succeeded", r.reason
+    time.sleep(0.3)
+    err_xy, err_yaw = robot.error_to((START[0] + 0.7, START[1] + 0.3, 0.0))
+    assert err_xy <= 0.01 and err_yaw <= math.radians(1.0), (err_xy, math.degrees(err_yaw))

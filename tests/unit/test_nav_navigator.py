@@ -1,0 +1,121 @@
+"""The navigate-to state machine (services/navigation/navigator.py) closed-loop with a
+kinematic body (0.25 s velocity lag, creep) on the true floor plan: it reaches goals
+through the doorway, passes an obstacle that is not in the map, gives up on a blocked
+doorway within the issue's 30 s with a reason, and says ``no_path`` at once for a goal the
+map cannot reach."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from quadmanip.services.navigation.costmap import Costmap, CostmapConfig
+from quadmanip.services.navigation.grid import Pose2, compose, transform_points
+from quadmanip.services.navigation.navigator import Navigator
+from quadmanip.services.navigation.scan import lidar_mount, scan_points
+from quadmanip.testbench.floor_plan import FloorPlan, simulate_scan, true_floor_plan
+
+pytestmark = pytest.mark.unit
+
+START = (0.8, 1.2, 0.0)
+KITCHEN = (7.5, 2.8, math.pi / 2)
+DT = 0.05
+
+
+def _occupancy(mask: np.ndarray) -> np.ndarray:
+    return np.where(mask, 100, 0).astype(np.int8)
+
+
+def _with_box(plan: FloorPlan, lo: tuple[float, float], hi: tuple[float, float]) -> FloorPlan:
+    mask = plan.mask.copy()
+    g = plan.geometry
+    (r0, r1), (c0, c1) = g.to_cell(np.array([lo, hi]))
+    mask[r0 : r1 + 1, c0 : c1 + 1] = True
+    return FloorPlan(mask, g)
+
+
+def _run(
+    world: FloorPlan, map_mask: np.ndarray, goal: Pose2, limit_s: float = 90.0, seed: int = 0
+) -> tuple[str, str, Pose2, float, int]:
+    """Closed loop: (final state, reason, final pose, time, steps touching the world)."""
+    rng = np.random.default_rng(seed)
+    geo = world.geometry
+    cm = Costmap(CostmapConfig(), _occupancy(map_mask), geo)
+    static = Costmap(CostmapConfig(), _occupancy(map_mask), geo)
+    nav = Navigator()
+    pose: Pose2 = START
+    vel = np.zeros(3)
+    why = nav.start(goal, 0.0, pose, cm, static)
+    if why:
+        return why.split(":")[0], why, pose, 0.0, 0
+    mount = lidar_mount()
+    touching = 0
+    t = 0.0
+    k = 0
+    while t < limit_s:
+        if k % 2 == 0:  # 10 Hz scans into the obstacle layer
+            lp = compose(pose, mount)
+            r = simulate_scan(world, lp, rng=rng)
+            pts = scan_points(t, r, -math.pi, 2 * math.pi / len(r), 0.1, 12.0, mount)
+            cm.update_obstacles(transform_points(pose, pts.points), lp)
+        st = nav.step(t, pose, cm)
+        if st.state != "active":
+            return st.state, st.reason, pose, t, touching
+        vel += DT / 0.25 * (np.array([st.vx, st.vy, st.wz]) - vel)
+        v = vel + rng.normal(0.0, 0.005, 3)
+        pose = compose(pose, (v[0] * DT, v[1] * DT, v[2] * DT))
+        if world.occupied(np.array([pose[:2]]))[0]:
+            touching += 1
+        t += DT
+        k += 1
+    return "timeout", "", pose, t, touching
+
+
+@pytest.fixture(scope="module")
+def plan() -> FloorPlan:
+    return true_floor_plan()
+
+
+def test_reaches_the_kitchen_through_the_doorway(plan):
+    state, reason, pose, t, touching = _run(plan, plan.mask, KITCHEN)
+    assert state == "reached", reason
+    assert math.hypot(pose[0] - KITCHEN[0], pose[1] - KITCHEN[1]) <= 0.06
+    assert touching == 0
+    # about 8 m at up to 0.5 m/s plus turns
+    assert t < 30.0, t
+
+
+def test_passes_a_box_that_is_not_in_the_map(plan):
+    world = _with_box(plan, (2.3, 1.0), (2.7, 1.4))  # on the straight line ahead
+    goal = (3.8, 1.2, 0.0)
+    state, reason, pose, _, touching = _run(world, plan.mask, goal)
+    assert state == "reached", reason
+    assert touching == 0
+    assert math.hypot(pose[0] - goal[0], pose[1] - goal[1]) <= 0.06
+
+
+def test_a_blocked_doorway_ends_blocked_with_a_reason_within_30_s(plan):
+    world = _with_box(plan, (4.9, 1.45), (5.1, 2.55))
+    state, reason, pose, t, touching = _run(world, plan.mask, KITCHEN, limit_s=60.0)
+    assert state == "blocked", (state, reason)
+    assert "recover" in reason or "for" in reason
+    assert t <= 30.0
+    assert touching == 0
+    assert pose[0] < 4.9  # it stayed in the living room
+
+
+def test_a_goal_the_map_cannot_reach_is_no_path_at_once(plan):
+    sealed = _with_box(plan, (4.9, 1.45), (5.1, 2.55))  # the doorway closed in the map
+    state, reason, _, t, _ = _run(sealed, sealed.mask, KITCHEN)
+    assert state == "no_path" and "map" in reason, reason
+    assert t == 0.0
+
+
+def test_bad_goals_are_rejected(plan):
+    cm = Costmap(CostmapConfig(), _occupancy(plan.mask), plan.geometry)
+    nav = Navigator()
+    assert "not finite" in nav.start((math.nan, 1.0, 0.0), 0.0, START, cm)
+    assert "off the map" in nav.start((40.0, 1.0, 0.0), 0.0, START, cm)
+    assert "obstacle" in nav.start((5.0, 0.5, 0.0), 0.0, START, cm)  # in the middle wall
+    assert not nav.active
