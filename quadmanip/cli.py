@@ -25,6 +25,7 @@ BENCH_TARGETS: dict[str, str] = {
     "locomotion": "quadmanip.testbench.bench_locomotion:main",
     "manipulation": "quadmanip.testbench.bench_manipulation:main",
     "robustness": "quadmanip.testbench.bench_robustness:main",
+    "navigation": "quadmanip.testbench.bench_navigation:main",
 }
 ROUTER_TARGET = "quadmanip.common.router:main"
 SIM_TOOLS: dict[str, str] = {"snapshot": "quadmanip.sim.snapshot:main"}

@@ -56,13 +56,18 @@ def _empty(seed: int = 0) -> Scenario:
 
 
 def nav_stack(
-    scenario: Scenario, log: object, nav_args: list[str], stand_timeout_s: float = 180.0
+    scenario: Scenario,
+    log: object,
+    nav_args: list[str],
+    stand_timeout_s: float = 180.0,
+    extra_sim: tuple[str, ...] = (),
 ) -> StackRun:
-    """The sim (LiDAR on, cameras off), locomotion and navigation with ``nav_args``."""
+    """The sim (LiDAR on, cameras off, plus ``extra_sim`` arguments), locomotion and
+    navigation with ``nav_args``."""
     return StackRun(
         scenario,
         log,  # type: ignore[arg-type]
-        extra_args={"navigation": nav_args},
+        extra_args={"navigation": nav_args, "sim": list(extra_sim)},
         stand_timeout_s=stand_timeout_s,
         services=NAV_SERVICES,
         sim_sensors=LIDAR_ONLY,
@@ -124,7 +129,8 @@ def run_mapping(
             s._check_alive()
             res = h.result(timeout=1.0)
         out.explore_time_s = s.now() - t0
-        out.status, out.reason = res.status, res.reason
+        out.status = res.status
+        out.reason = res.reason or (res.result.reason if res.result is not None else "")
         # the newest map, published after the explore ended
         t_end = time.monotonic() + 8.0
         first = maps.get()

@@ -22,7 +22,8 @@ __all__ = ["NavRecorder"]
 class NavRecorder:
     """Subscribes on ``bus``; :meth:`save` writes ``stamp``, ``ranges`` (N, rays),
     ``odom`` (N, 8: x y z qw qx qy qz stamp), ``gt`` (N, 4: x y yaw stamp) and ``nav``
-    (N, 4: x y yaw stamp, NaN before navigation's first pose)."""
+    (N, 4: x y yaw stamp, NaN before navigation's first pose) and ``cmd`` (N, 4: the newest
+    body velocity command vx vy wz stamp)."""
 
     def __init__(self, bus: Bus) -> None:
         self.lock = threading.Lock()
@@ -30,6 +31,7 @@ class NavRecorder:
         self.odom = bus.latest("locomotion/odometry")
         self.gt = bus.latest("sim/gt/base")
         self.nav = bus.latest("navigation/pose")
+        self.cmd = bus.latest("locomotion/cmd_vel")
         self.angle_min = 0.0
         self.angle_increment = 0.0
         bus.subscribe("sim/scan", self._on_scan)
@@ -43,9 +45,11 @@ class NavRecorder:
                       gt.stamp])  # fmt: skip
         o = np.array([*od.position, *od.orientation, od.stamp])
         n = np.full(4, np.nan) if nv is None else np.array([nv.x, nv.y, nv.yaw, nv.stamp])
+        c = self.cmd.get()
+        cv = np.full(4, np.nan) if c is None else np.array([c.vx, c.vy, c.wz, c.stamp])
         with self.lock:
             self.angle_min, self.angle_increment = float(s.angle_min), float(s.angle_increment)
-            self.rows.append((np.float64(s.stamp), np.asarray(s.ranges, np.float32), o, g, n))
+            self.rows.append((np.float64(s.stamp), np.asarray(s.ranges, np.float32), o, g, n, cv))
 
     def __len__(self) -> int:
         return len(self.rows)
@@ -62,6 +66,7 @@ class NavRecorder:
             "odom": np.stack([r[2] for r in rows]),
             "gt": np.stack([r[3] for r in rows]),
             "nav": np.stack([r[4] for r in rows]),
+            "cmd": np.stack([r[5] for r in rows]),
             "angles": np.array([self.angle_min, self.angle_increment]),
         }
 

@@ -52,6 +52,7 @@ class ExploreConfig:
     candidates: int = 6  # nearest frontiers tried by planning, per choice
     blacklist_radius: float = 0.4
     recheck_period: float = 2.0  # s: drop the current goal once its frontier is gone
+    open_radius: float = 0.5  # m: ... i.e. no frontier cell is left this close to it
 
 
 @dataclass(frozen=True)

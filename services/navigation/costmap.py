@@ -50,13 +50,15 @@ UNKNOWN = 255
 @dataclass(frozen=True)
 class CostmapConfig:
     """Costmap parameters. The footprint defaults come from the robot description: trunk
-    0.419 x 0.2505 m; the feet stand 0.155 m (+ 0.02 m sole) out from the centre line, so
-    the inscribed radius is the feet's half width plus a margin, not the trunk's."""
+    0.419 x 0.2505 m, feet 0.155 m (+ 0.02 m sole) out from the centre line. The robot
+    radius is the circle the trunk sweeps turning in place (half its diagonal, 0.24 m)
+    plus a margin: with only the feet's half width (0.19 m) the planner let the robot stand
+    beside the sofa, and its in-place turn there knocked it over in a mapping run."""
 
     occupied_threshold: int = 65
     unknown_is_lethal: bool = True
-    robot_radius: float = 0.19  # m: trunk half width 0.125 + feet 0.05 + margin 0.015
-    inflation_radius: float = 0.6  # m: cost falls to 0 beyond this clearance
+    robot_radius: float = 0.28  # m: see the class docstring
+    inflation_radius: float = 0.7  # m: cost falls to 0 beyond this clearance
     cost_scaling: float = 5.0  # 1/m: cost = 252 exp(-k (d - robot_radius))
     clearance_max: float = 1.0  # m: clearances read at most this (and the rebuild pad)
     obstacle_range: float = 4.0  # m: returns nearer than this mark obstacles

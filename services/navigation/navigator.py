@@ -23,7 +23,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from quadmanip.services.navigation.costmap import LETHAL, Costmap
+from quadmanip.services.navigation.costmap import INSCRIBED, LETHAL, Costmap
 from quadmanip.services.navigation.global_planner import (
     PlannerConfig,
     PlanResult,
@@ -55,6 +55,8 @@ class NavigatorConfig:
     turn_rate: float = 0.6  # rad/s
     give_up_after: float = 25.0  # s from the first recovery: then ``blocked``
     path_check_ahead: float = 2.0  # m of path ahead checked for new obstacles
+    escape_speed: float = 0.12  # m/s: stepping out of the inscribed zone, away from obstacles
+    escape_time: float = 4.0  # s at most per escape
 
 
 @dataclass(frozen=True)
@@ -93,6 +95,7 @@ class _Goal:
     recovery: list[tuple[str, float, float]] = field(default_factory=list)  # (kind, until, arg)
     recovery_origin: Pose2 | None = None
     last_reason: str = ""
+    escape_until: float = -math.inf
 
 
 class Navigator:
@@ -223,6 +226,11 @@ class Navigator:
                 return NavStep(0.0, 0.0, arg * cfg.turn_rate, "active", "recovery: turning",
                                mode="turn")  # fmt: skip
             return NavStep(0.0, 0.0, 0.0, "active", "recovery: waiting", mode="wait")
+        # ---- standing too close to an obstacle (a tracking error, an obstacle that moved
+        # in): step straight away from it first; the follower's checks would refuse to move
+        esc = self._escape(g, now, pose, costmap)
+        if esc is not None:
+            return esc
         new_path = None
         # ---- (re)plan
         if (
@@ -233,6 +241,9 @@ class Navigator:
             res = self._plan(g, now, pose, costmap)
             if not res.ok:
                 g.path = None
+                if res.reason.startswith("goal"):
+                    # what the LiDAR now sees covers the goal: backing up will not help
+                    return self._end("blocked", f"blocked: {res.reason}")
                 return self._start_recovery(g, now, pose, costmap)
             new_path = res.path
         assert g.path is not None
@@ -261,6 +272,30 @@ class Navigator:
             return self._start_recovery(g, now, pose, costmap)
         return NavStep(cmd.vx, cmd.vy, cmd.wz, "active", cmd.mode, cmd.distance_left,
                        new_path, cmd.mode)  # fmt: skip
+
+    def _escape(self, g: _Goal, now: float, pose: Pose2, costmap: Costmap) -> NavStep | None:
+        cfg = self.config
+        xy = np.array([pose[:2]])
+        inside = int(costmap.cost_at(xy)[0]) in (INSCRIBED, LETHAL)  # not unknown (255)
+        if not inside:
+            g.escape_until = -math.inf
+            return None
+        if g.escape_until == -math.inf:
+            g.escape_until = now + cfg.escape_time
+            self.follower.reset()
+        if now > g.escape_until:
+            return None  # could not get out: let the follower and the recoveries try
+        h = 0.5 * costmap.geometry.resolution
+        d = costmap.clearance(np.array([[pose[0] + h, pose[1]], [pose[0] - h, pose[1]],
+                                        [pose[0], pose[1] + h], [pose[0], pose[1] - h]]))  # fmt: skip
+        grad = np.array([d[0] - d[1], d[2] - d[3]])
+        n = float(np.hypot(*grad))
+        if n < 1e-9:
+            return None
+        gx, gy = grad / n
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        vx, vy = cfg.escape_speed * (c * gx + s * gy), cfg.escape_speed * (-s * gx + c * gy)
+        return NavStep(vx, vy, 0.0, "active", "escaping: too close to an obstacle", mode="escape")
 
     def path_poses(self) -> np.ndarray | None:
         """The current path as poses (N, 3) with headings (for publishing)."""

@@ -28,7 +28,7 @@ from __future__ import annotations
 import math
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +40,7 @@ from quadmanip.common.service import Input, Output, Service, run_service
 from quadmanip.services.navigation.amcl import ParticleFilter
 from quadmanip.services.navigation.approach import ApproachController, approach_pose
 from quadmanip.services.navigation.config import NavigationConfig
-from quadmanip.services.navigation.costmap import Costmap
+from quadmanip.services.navigation.costmap import INSCRIBED, Costmap
 from quadmanip.services.navigation.frontier import find_frontiers
 from quadmanip.services.navigation.global_planner import plan_path
 from quadmanip.services.navigation.grid import (
@@ -103,6 +103,7 @@ class _Job:
     blacklist: list[tuple[float, float]] = field(default_factory=list)
     t_check: float = -math.inf
     frontier_goal: tuple[float, float] | None = None
+    frontier_raw: tuple[float, float] | None = None
     t_settle: float | None = None
 
 
@@ -338,7 +339,11 @@ class NavigationNode(Service):
             c1 - c0,
             r1 - r0,
         )
-        self.costmap = Costmap(self.config.costmap, occ, sub)
+        # exploring: unknown space is crossable (at a cost); the LiDAR sees it as the robot
+        # comes near. Lethal unknown made every frontier goal "blocked" as the robot's
+        # projected footprint reached past the frontier.
+        cfg = replace(self.config.costmap, unknown_is_lethal=False)
+        self.costmap = Costmap(cfg, occ, sub)
         self.static_costmap = self.costmap
         self.map_grid, self.map_geo = occ, sub
 
@@ -416,11 +421,7 @@ class NavigationNode(Service):
         nc = self.config.node
         changed = self.slam is not None and self.map_version != self.published_map_version
         if wall - self.t_wall_map >= nc.map_period or (changed and wall - self.t_wall_map >= 1.0):
-            grid, geo = (
-                (self.slam.occupancy(), self.slam.geometry)
-                if self.slam is not None
-                else (self.map_grid, self.map_geo)
-            )
+            grid, geo = self._map_view()
             self.pub_map.publish(
                 m.OccupancyGrid(
                     stamp=now,
@@ -444,6 +445,22 @@ class NavigationNode(Service):
                 )
             )
             self.t_wall_costmap = wall
+
+    def _map_view(self) -> tuple[np.ndarray, GridGeometry]:
+        """The map to publish: the saved map, or the SLAM grid's known part (+ a margin),
+        so that the message stays small however large the SLAM grid is."""
+        if self.slam is None:
+            return self.map_grid, self.map_geo
+        geo = self.slam.geometry
+        b = self.slam.grid.known_bounds()
+        if b is None:
+            return self.slam.occupancy(), geo
+        pad = int(self.config.node.costmap_margin / geo.resolution)
+        r0, r1 = max(b[0] - pad, 0), min(b[1] + pad, geo.height)
+        c0, c1 = max(b[2] - pad, 0), min(b[3] + pad, geo.width)
+        sub = GridGeometry(geo.resolution, geo.origin_x + c0 * geo.resolution,
+                           geo.origin_y + r0 * geo.resolution, c1 - c0, r1 - r0)  # fmt: skip
+        return self.slam.occupancy()[r0:r1, c0:c1], sub
 
     # ------------------------------------------------------------------ jobs
     def _step_job(self, now: float, pose: Pose2, odom: Pose2) -> None:
@@ -591,8 +608,13 @@ class NavigationNode(Service):
             if st.state == "active":
                 self._send(st.vx, st.vy, st.wz)
                 return
-            if st.state != "reached" and job.frontier_goal is not None:
-                job.blacklist.append(job.frontier_goal)
+            self.log.info("frontier goal ended", state=st.state, reason=st.reason)
+            # unreachable, or reached and still open (it cannot be seen from the nearest
+            # place the robot fits, e.g. a gap behind furniture): not again
+            if job.frontier_raw is not None and (
+                st.state != "reached" or self._frontier_still_open(job)
+            ):
+                job.blacklist.append(job.frontier_raw)
             job.frontier_goal = None
             return
         # choose the next frontier
@@ -607,40 +629,48 @@ class NavigationNode(Service):
         why = self.navigator.start((goal[0], goal[1], 0.0), now, pose, self.costmap, None,
                                    ec.goal_tolerance, math.pi, True)  # fmt: skip
         if why:
-            job.blacklist.append(goal)
+            if job.frontier_raw is not None:
+                job.blacklist.append(job.frontier_raw)
             job.frontier_goal = None
         else:
             job.text = f"exploring: frontier at ({goal[0]:.2f}, {goal[1]:.2f})"
 
     def _frontier_still_open(self, job: _Job) -> bool:
-        if job.frontier_goal is None or self.slam is None:
+        """Whether unknown space still borders the free space near the chosen frontier."""
+        if job.frontier_raw is None or self.slam is None:
             return False
         fr = find_frontiers(self.slam.occupancy(), self.slam.geometry, self.config.frontier)
-        r = self.config.explore.goal_search_radius + 0.2
+        x, y = job.frontier_raw
+        r = self.config.explore.open_radius
         return any(
-            math.hypot(f.goal_xy[0] - job.frontier_goal[0], f.goal_xy[1] - job.frontier_goal[1]) < r
+            bool(np.any(np.hypot(*(self.slam.geometry.cell_center(*f.cells.T) - (x, y)).T) < r))
             for f in fr
         )
 
     def _next_frontier(self, job: _Job, pose: Pose2) -> tuple[float, float] | None:
+        """The nearest frontier the planner can reach (its goal pulled back into known free
+        space); unreachable ones are blacklisted so they are not tried again."""
         assert self.slam is not None and self.costmap is not None
         ec = self.config.explore
         fr = find_frontiers(self.slam.occupancy(), self.slam.geometry, self.config.frontier)
-        cands: list[tuple[float, tuple[float, float]]] = []
+        cands: list[tuple[float, tuple[float, float], tuple[float, float]]] = []
         for f in fr:
-            goal = self._free_near(f.goal_xy)
-            if goal is None:
-                continue
-            if any(math.hypot(goal[0] - b[0], goal[1] - b[1]) < ec.blacklist_radius
+            raw = (float(f.goal_xy[0]), float(f.goal_xy[1]))
+            if any(math.hypot(raw[0] - b[0], raw[1] - b[1]) < ec.blacklist_radius
                    for b in job.blacklist):  # fmt: skip
                 continue
-            cands.append((math.hypot(goal[0] - pose[0], goal[1] - pose[1]), goal))
+            goal = self._free_near(raw)
+            if goal is None:
+                job.blacklist.append(raw)
+                continue
+            cands.append((math.hypot(goal[0] - pose[0], goal[1] - pose[1]), goal, raw))
         cands.sort()
-        for _, goal in cands[: ec.candidates]:
+        for _, goal, raw in cands:
             res = plan_path(self.costmap, pose[:2], goal, self.config.planner)
             if res.ok:
+                job.frontier_raw = raw
                 return goal
-            job.blacklist.append(goal)
+            job.blacklist.append(raw)
         return None
 
     def _free_near(self, xy: np.ndarray | tuple[float, float]) -> tuple[float, float] | None:
@@ -657,7 +687,7 @@ class NavigationNode(Service):
         if not len(rr):
             return None
         centres = geo.cell_center(rr, cc)
-        trav = cm.is_traversable(centres)
+        trav = cm.cost_at(centres) < INSCRIBED  # known free, room to stand (not unknown)
         if not trav.any():
             return None
         centres = centres[trav]

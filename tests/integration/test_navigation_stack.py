@@ -31,7 +31,9 @@ def test_walks_from_the_living_room_into_the_kitchen():
         t0 = s.now()
         while res is None:
             s._check_alive()
-            assert s.now() - t0 < 90.0, "no result after 90 s of sim time\n" + log.getvalue()[-3000:]
+            assert s.now() - t0 < 90.0, (
+                "no result after 90 s of sim time\n" + log.getvalue()[-3000:]
+            )
             res = h.result(timeout=1.0)
         assert res.status == "succeeded", (res.reason, log.getvalue()[-3000:])
         s.wait_sim(s.now() + 0.5)

@@ -36,7 +36,12 @@ def _with_box(plan: FloorPlan, lo: tuple[float, float], hi: tuple[float, float])
 
 
 def _run(
-    world: FloorPlan, map_mask: np.ndarray, goal: Pose2, limit_s: float = 90.0, seed: int = 0
+    world: FloorPlan,
+    map_mask: np.ndarray,
+    goal: Pose2,
+    limit_s: float = 90.0,
+    seed: int = 0,
+    start: Pose2 = START,
 ) -> tuple[str, str, Pose2, float, int]:
     """Closed loop: (final state, reason, final pose, time, steps touching the world)."""
     rng = np.random.default_rng(seed)
@@ -44,7 +49,7 @@ def _run(
     cm = Costmap(CostmapConfig(), _occupancy(map_mask), geo)
     static = Costmap(CostmapConfig(), _occupancy(map_mask), geo)
     nav = Navigator()
-    pose: Pose2 = START
+    pose: Pose2 = start
     vel = np.zeros(3)
     why = nav.start(goal, 0.0, pose, cm, static)
     if why:
@@ -119,3 +124,12 @@ def test_bad_goals_are_rejected(plan):
     assert "off the map" in nav.start((40.0, 1.0, 0.0), 0.0, START, cm)
     assert "obstacle" in nav.start((5.0, 0.5, 0.0), 0.0, START, cm)  # in the middle wall
     assert not nav.active
+
+
+def test_a_robot_standing_too_close_to_a_wall_steps_out_and_goes(plan):
+    # 0.15 m from the south wall, facing it (after a grasp at the wall): inside the
+    # inscribed zone, where the follower alone refuses to move
+    start = (2.0, 0.15, -math.pi / 2)
+    state, reason, pose, _, touching = _run(plan, plan.mask, (2.5, 1.8, 0.0), start=start)
+    assert state == "reached", reason
+    assert touching == 0
