@@ -53,6 +53,8 @@ class ExploreConfig:
     blacklist_radius: float = 0.4
     recheck_period: float = 2.0  # s: drop the current goal once its frontier is gone
     open_radius: float = 0.5  # m: ... i.e. no frontier cell is left this close to it
+    settle_time: float = 1.5  # s (robot time) of scans before the first frontier is chosen
+    start_patience: float = 3.0  # s of failing to plan from the robot's spot before giving up
 
 
 @dataclass(frozen=True)

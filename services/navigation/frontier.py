@@ -18,8 +18,10 @@ __all__ = ["Frontier", "FrontierConfig", "find_frontiers", "rank_frontiers"]
 class FrontierConfig:
     """What counts as free, which frontiers are big enough, how size trades against cost."""
 
-    free_max_percent: int = 35
-    """cells with 0 <= occupancy <= this are free (the grid's free threshold)"""
+    free_max_percent: int = 49
+    """cells with 0 <= occupancy <= this count as free: seen empty more often than not (one
+    pass-through leaves a cell at 40 %, so the grid's 35 % free threshold found no frontier
+    before the robot had moved)"""
     min_cells: int = 6
     """smaller clusters are dropped: 6 cells of 5 cm, narrower than the robot can pass"""
     size_bonus: float = 0.1

@@ -104,6 +104,8 @@ class _Job:
     t_check: float = -math.inf
     frontier_goal: tuple[float, float] | None = None
     frontier_raw: tuple[float, float] | None = None
+    start_problem: str = ""
+    start_retries: int = 0
     t_settle: float | None = None
 
 
@@ -597,6 +599,7 @@ class NavigationNode(Service):
             if now - job.t_check >= ec.recheck_period:
                 job.t_check = now
                 if not self._frontier_still_open(job):
+                    self.log.info("frontier seen: next one")
                     self.navigator.cancel()
                     self._stop_robot()
                     return
@@ -617,10 +620,20 @@ class NavigationNode(Service):
                 job.blacklist.append(job.frontier_raw)
             job.frontier_goal = None
             return
-        # choose the next frontier
-        if self.costmap is None:
+        # choose the next frontier (after a moment: before the first scans are in the map
+        # and its costmap there is no frontier at all, which is not "explored")
+        if self.costmap is None or now - job.t0 < self.config.explore.settle_time:
+            job.text = "exploring: looking around"
             return
         goal = self._next_frontier(job, pose)
+        if goal is None and job.start_problem:
+            job.start_retries += 1
+            if job.start_retries * self.loop_period < self.config.explore.start_patience:
+                return  # e.g. the costmap just rebuilt around the robot: try again
+            self._finish(job, "blocked", f"blocked: cannot plan from here ({job.start_problem})",
+                         pose)  # fmt: skip
+            return
+        job.start_retries = 0
         if goal is None:
             self._finish(job, "reached", "explored: no reachable frontier left", pose)
             return
@@ -665,11 +678,17 @@ class NavigationNode(Service):
                 continue
             cands.append((math.hypot(goal[0] - pose[0], goal[1] - pose[1]), goal, raw))
         cands.sort()
+        job.start_problem = ""
         for _, goal, raw in cands:
             res = plan_path(self.costmap, pose[:2], goal, self.config.planner)
             if res.ok:
                 job.frontier_raw = raw
                 return goal
+            if res.reason.startswith("start"):
+                job.start_problem = res.reason  # the robot's spot, not the frontier
+                return None
+            self.log.info("frontier unreachable", at=[round(raw[0], 2), round(raw[1], 2)],
+                          reason=res.reason)  # fmt: skip
             job.blacklist.append(raw)
         return None
 

@@ -32,16 +32,16 @@ def probability(lo: np.ndarray) -> np.ndarray:
 @dataclass(frozen=True)
 class OccupancyConfig:
     """Inverse sensor model and thresholds. ``l_occ``/``l_free`` are the log-odds one
-    observation adds. They are equal and opposite: a cell must be hit by more than half
-    the beams that reach it to become occupied. Range noise puts some returns of a wall in
-    the free cell in front of it; with hits weighing more (gmapping counts a cell occupied
-    at 25 % hits) that cell fills in, the wall grows a cell of noise toward the robot and
-    the scan matcher loses its sub-cell grip (measured: 5-30 cm drift over a 19 m walk
-    instead of < 1 cm). ``l_min``/``l_max`` clamp the sum so that a handful of contrary
+    observation adds. A hit weighs about twice a pass-through: beams that graze a wall
+    cross its cells about as often as they end in them, and 4 cm table legs are hit by
+    one beam in several; with equal weights they came out grey (the map's F1 0.92 against
+    0.93, a recorded exploration run). The scan matcher does not read this grid (it matches
+    against the raw returns, :mod:`.slam`), so a wall a cell thicker toward the robot costs
+    nothing there. ``l_min``/``l_max`` clamp the sum so that a handful of contrary
     observations overturn a cell (a moved chair is cleared)."""
 
     l_occ: float = 0.85
-    l_free: float = -0.85
+    l_free: float = -0.4
     l_min: float = -2.0
     l_max: float = 3.5
     occupied_threshold: float = 0.65
