@@ -50,7 +50,9 @@ from quadmanip.services.navigation.grid import (
     transform_points,
     wrap,
 )
+from quadmanip.services.navigation.config import NavigationConfig
 from quadmanip.services.navigation.map_io import load_map
+from quadmanip.services.navigation.node import resolve_map_path
 from quadmanip.services.navigation.path_follower import FollowerConfig
 from quadmanip.services.navigation.scan import lidar_mount, scan_points
 from quadmanip.sim.scenarios import Scenario
@@ -209,7 +211,7 @@ def part_nav(
     seed: int, n_goals: int, n_approach: int, log: Any, record: str = ""
 ) -> dict[str, Any]:
     plan = true_floor_plan()
-    occ, geo = load_map(Path(__file__).resolve().parents[1] / "configs/maps/house.yaml")
+    occ, geo = load_map(resolve_map_path(NavigationConfig().node.map))
     plan_cm = Costmap(CostmapConfig(), np.where(plan.mask, 100, 0).astype(np.int8), plan.geometry)
     goals = random_free_poses(plan, n_goals, seed)
     out: dict[str, Any] = {"goals": [], "approach": []}
@@ -286,6 +288,10 @@ def part_nav(
                 "time_s": None
                 if res is None or res.result is None
                 else round(res.result.duration, 2),
+                # the error navigation itself saw, in the odom frame: the controller's share
+                "odom_error_m": None
+                if res is None or res.result is None
+                else round(res.result.error_xy, 4),
             }
             out["approach"].append(row)
             print(f"  approach {k + 1}/{n_approach}: {row}", flush=True)

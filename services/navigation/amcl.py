@@ -94,9 +94,13 @@ class AmclConfig:
     """Distance field cap (m): beyond it a hit is as likely as a random reading."""
     occupied_threshold: int = 65
     free_threshold: int = 25
-    surface_offset: float | None = None
+    surface_offset: float | None = 0.0
     """Where the obstacle surface lies, as a distance from occupied cell centres; None:
-    half a cell (a range ends where the beam enters the occupied cell, not at its centre)."""
+    half a cell (a range ends where the beam enters the occupied cell, as on a raster
+    drawn from the true geometry). 0 for maps built by :mod:`.slam`: there a hit weighs
+    more than a pass, so range noise grows walls by a cell toward the robot and the
+    surface lies at the first occupied cells' centres. On the committed house map and a
+    recorded walk: 1.3-2.3 cm RMS with 0, 4.1-4.3 cm with half a cell."""
     # recovery (PR Table 8.3):
     recovery_alpha_slow: float = 0.001
     recovery_alpha_fast: float = 0.1

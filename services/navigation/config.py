@@ -11,6 +11,7 @@ from quadmanip.services.navigation.frontier import FrontierConfig
 from quadmanip.services.navigation.global_planner import PlannerConfig
 from quadmanip.services.navigation.navigator import NavigatorConfig
 from quadmanip.services.navigation.path_follower import FollowerConfig
+from quadmanip.services.navigation.scan_anchor import AnchorConfig
 from quadmanip.services.navigation.slam import SlamConfig
 
 __all__ = ["ExploreConfig", "NavigationConfig", "NodeConfig"]
@@ -68,6 +69,7 @@ class NavigationConfig:
     planner: PlannerConfig = field(default_factory=PlannerConfig)
     follower: FollowerConfig = field(default_factory=FollowerConfig)
     approach: ApproachConfig = field(default_factory=ApproachConfig)
+    anchor: AnchorConfig = field(default_factory=AnchorConfig)
     navigator: NavigatorConfig = field(default_factory=NavigatorConfig)
     frontier: FrontierConfig = field(default_factory=FrontierConfig)
     explore: ExploreConfig = field(default_factory=ExploreConfig)

@@ -113,6 +113,7 @@ class Navigator:
         self.follower = PathFollower(self.follower_config)
         self.goal: _Goal | None = None
         self.plan_ms: list[float] = []
+        self._t_last = -math.inf
 
     # ------------------------------------------------------------------ goals
     def start(
@@ -208,6 +209,8 @@ class Navigator:
 
     def step(self, now: float, pose: Pose2, costmap: Costmap) -> NavStep:
         """One control step at robot time ``now`` with the robot's map pose."""
+        dt = min(max(now - self._t_last, 1e-3), 0.2) if self._t_last > -math.inf else None
+        self._t_last = now
         g = self.goal
         if g is None:
             return NavStep(0.0, 0.0, 0.0, "idle")
@@ -256,6 +259,7 @@ class Navigator:
             clearance,
             xy_tol=g.tol_xy,
             yaw_tol=g.tol_yaw,
+            dt=dt,
         )
         if cmd.done:
             return self._end("reached", "reached", 0.0)

@@ -60,6 +60,7 @@ from quadmanip.services.navigation.scan import (
     lidar_mount,
     scan_points,
 )
+from quadmanip.services.navigation.scan_anchor import ScanAnchor
 from quadmanip.services.navigation.slam import OnlineSlam
 
 __all__ = ["NavigationNode", "main", "resolve_map_path"]
@@ -106,6 +107,8 @@ class _Job:
     frontier_raw: tuple[float, float] | None = None
     start_problem: str = ""
     start_retries: int = 0
+    anchor: ScanAnchor | None = None
+    anchor_scan: float = -math.inf
     t_settle: float | None = None
 
 
@@ -190,6 +193,8 @@ class NavigationNode(Service):
         self.published_map_version = -1
         self.inputs_ok = False
         self.loc_ms: list[float] = []
+        self.dt = self.loop_period
+        self.t_step = -1.0
         self.status = "mapping" if self.slam else "converging"
         for action in self.actions:
             self.action_server(action, self._execute, accept=self._accept, policy="parallel")
@@ -273,7 +278,10 @@ class NavigationNode(Service):
         self._stop_robot()
         with self.lock:
             self.job = None
-        self.log.info("goal ended", kind=job.kind, outcome=outcome, reason=reason)
+        extra = {}
+        if job.anchor is not None:
+            extra = {"anchor_matches": job.anchor.matches, "anchor_refused": job.anchor.refused}
+        self.log.info("goal ended", kind=job.kind, outcome=outcome, reason=reason, **extra)
         job.done.set()
 
     def _stop_robot(self) -> None:
@@ -372,6 +380,9 @@ class NavigationNode(Service):
         assert od is not None and scan is not None
         odom = _pose_of(od)
         now = float(od.stamp)
+        # robot time per control step (lockstep runs slower than the wall clock)
+        self.dt = min(max(now - self.t_step, 1e-3), 0.2) if self.t_step > 0 else self.loop_period
+        self.t_step = now
         if float(scan.stamp) > self.last_scan_stamp:
             self.last_scan_stamp = float(scan.stamp)
             if abs(float(scan.stamp) - now) <= self.config.node.odom_max_skew and self._upright(od):
@@ -518,6 +529,10 @@ class NavigationNode(Service):
             job.target = approach_pose(t, float(g.standoff), heading)
             job.total = max(math.hypot(job.target[0] - odom[0], job.target[1] - odom[1]), 1e-3)
             self.approacher.reset()
+            scan = self.scan_cache.get()
+            if scan is not None:
+                job.anchor = ScanAnchor(self._scan_points(scan).points, odom, self.config.anchor)
+                job.anchor_scan = float(scan.stamp)
             return True
         return True  # explore chooses its goals as it goes
 
@@ -559,8 +574,15 @@ class NavigationNode(Service):
         if now - job.t0 > self.config.node.approach_timeout:
             self._finish(job, "blocked", "blocked: the approach did not settle in time", odom)
             return
+        if job.anchor is not None:  # hold the odometry to the scan taken at the start
+            scan = self.scan_cache.get()
+            if scan is not None and float(scan.stamp) > job.anchor_scan:
+                job.anchor_scan = float(scan.stamp)
+                if abs(float(scan.stamp) - now) <= self.config.node.odom_max_skew:
+                    job.anchor.update(self._scan_points(scan).points, odom)
+            odom = job.anchor.pose(odom)
         vx, vy, wz, done = self.approacher.command(
-            odom, job.target, float(g.tolerance_xy), float(g.tolerance_yaw)
+            odom, job.target, float(g.tolerance_xy), float(g.tolerance_yaw), dt=self.dt
         )
         if done:
             self._finish(job, "reached", "reached", odom)

@@ -21,6 +21,9 @@ from scipy import ndimage
 
 pytestmark = pytest.mark.unit
 
+# the maps here are rasters of the true geometry: a return lies on an occupied cell's edge
+RASTER = AmclConfig(surface_offset=None)
+
 STEP = 0.05  # m between scans: 0.5 m/s at 10 Hz
 RAYS = 360
 
@@ -162,7 +165,7 @@ def test_walk_crosses_both_rooms(house, walk):
 def test_tracking_walk_is_centimetre_accurate(house, walk):
     plan, occ, mount = house
     truth, odom = walk
-    pf = ParticleFilter(AmclConfig(), occ, plan.geometry, np.random.default_rng(2))
+    pf = ParticleFilter(RASTER, occ, plan.geometry, np.random.default_rng(2))
     pf.initialize(truth[0], (0.05, 0.05, math.radians(2.0)))
     timing: list[tuple[float, int]] = []
     pos, yaw, conv = run(pf, plan, mount, truth, odom, np.random.default_rng(3), timing=timing)
@@ -185,7 +188,7 @@ def test_rough_initial_pose_converges_within_ten_seconds(house, walk):
     truth, odom = walk
     t0 = truth[0]
     rough = (t0[0] + 0.7071, t0[1] + 0.7071, float(wrap(t0[2] + math.pi / 2)))  # 1 m, 90 deg
-    pf = ParticleFilter(AmclConfig(), occ, plan.geometry, np.random.default_rng(4))
+    pf = ParticleFilter(RASTER, occ, plan.geometry, np.random.default_rng(4))
     pf.initialize(rough, (0.7, 0.7, 1.0))
     assert errors(pf.estimate()[0], t0)[0] > 0.5
     pos, yaw, _ = run(pf, plan, mount, truth[:100], odom[:100], np.random.default_rng(5))
@@ -202,7 +205,7 @@ def test_global_localisation_in_the_house(house, walk, start):
     plan, occ, mount = house
     truth, odom = walk
     n = 120
-    pf = ParticleFilter(AmclConfig(), occ, plan.geometry, np.random.default_rng(6 + start))
+    pf = ParticleFilter(RASTER, occ, plan.geometry, np.random.default_rng(6 + start))
     pf.initialize_global()
     assert pf.particle_count == pf.config.global_particles and not pf.converged
     tr, od = truth[start : start + n], odom[start : start + n]
@@ -224,7 +227,7 @@ def test_global_localisation_in_the_house(house, walk, start):
 def test_half_the_returns_dropped_still_tracks(house, walk):
     plan, occ, mount = house
     truth, odom = walk
-    pf = ParticleFilter(AmclConfig(), occ, plan.geometry, np.random.default_rng(8))
+    pf = ParticleFilter(RASTER, occ, plan.geometry, np.random.default_rng(8))
     pf.initialize(truth[0], (0.05, 0.05, math.radians(2.0)))
     pos, yaw, _ = run(pf, plan, mount, truth[:200], odom[:200], np.random.default_rng(9), 0.5)
     print(f"\n50 % dropout: position RMS {100 * rms(pos):.2f} cm, max {100 * pos.max():.2f} cm")
@@ -243,7 +246,7 @@ def test_unmapped_clutter_does_not_disturb_tracking(house, walk):
         r1, c1 = g.to_cell(np.array([[x1, y1]]))
         mask[r0[0] : r1[0], c0[0] : c1[0]] = True
     cluttered = FloorPlan(mask, g)
-    pf = ParticleFilter(AmclConfig(), occ, g, np.random.default_rng(19))
+    pf = ParticleFilter(RASTER, occ, g, np.random.default_rng(19))
     pf.initialize(truth[0], (0.05, 0.05, 0.03))
     pos, yaw, _ = run(pf, cluttered, mount, truth[:150], odom[:150], np.random.default_rng(20))
     print(f"\nunmapped clutter: position RMS {100 * rms(pos):.2f} cm, max {100 * pos.max():.2f} cm")
@@ -260,7 +263,7 @@ def test_kidnapped_robot_recovers(house, walk):
     odom = noisy_odometry(truth[:60], rng)
     for a, b in zip(truth[300:-1], truth[301:], strict=True):
         odom.append(compose(odom[-1], compose(invert(a), b)))
-    pf = ParticleFilter(AmclConfig(), occ, plan.geometry, np.random.default_rng(11))
+    pf = ParticleFilter(RASTER, occ, plan.geometry, np.random.default_rng(11))
     pf.initialize(truth[0], (0.05, 0.05, 0.03))
     pos, _, _ = run(pf, plan, mount, tr, odom, rng)
     first = settled_at(pos, 0.05)
@@ -272,7 +275,7 @@ def test_kidnapped_robot_recovers(house, walk):
 def test_standing_still_leaves_the_particles_alone(house, walk):
     plan, occ, mount = house
     truth, odom = walk
-    pf = ParticleFilter(AmclConfig(), occ, plan.geometry, np.random.default_rng(12))
+    pf = ParticleFilter(RASTER, occ, plan.geometry, np.random.default_rng(12))
     pf.initialize(truth[0], (0.2, 0.2, 0.2))
     rng = np.random.default_rng(13)
     pf.predict(odom[0])
@@ -290,7 +293,7 @@ def test_standing_still_leaves_the_particles_alone(house, walk):
 def test_scan_without_returns_changes_nothing(house, walk):
     plan, occ, mount = house
     truth, odom = walk
-    pf = ParticleFilter(AmclConfig(), occ, plan.geometry, np.random.default_rng(14))
+    pf = ParticleFilter(RASTER, occ, plan.geometry, np.random.default_rng(14))
     pf.initialize(truth[0], (0.05, 0.05, 0.03))
     rng = np.random.default_rng(15)
     pf.predict(odom[0])
@@ -309,7 +312,7 @@ def test_scan_without_returns_changes_nothing(house, walk):
 def test_scan_off_the_map_is_finite_and_map_to_odom_closes(house, walk):
     plan, occ, mount = house
     truth, odom = walk
-    pf = ParticleFilter(AmclConfig(), occ, plan.geometry, np.random.default_rng(16))
+    pf = ParticleFilter(RASTER, occ, plan.geometry, np.random.default_rng(16))
     pf.initialize((10.8, 4.8, 0.0), (0.1, 0.1, 0.1))  # outside the house, on unknown cells
     pf.predict(odom[0])
     assert pf.update(scan_at(plan, mount, truth[0], np.random.default_rng(17)))
