@@ -66,6 +66,7 @@ __all__ = ["main", "map_scores", "random_free_poses"]
 
 HOUSE_START = (0.8, 1.2, 0.0)
 CONTACTS_ON = ("--set", "ground_truth.contacts_rate=20")
+GOAL_TOL = (0.03, math.radians(2.0))  # what the bench asks navigate_to for
 
 
 # ------------------------------------------------------------------ scoring helpers
@@ -225,9 +226,15 @@ def part_nav(
             length, ideal = _ideal_time(plan_cm, start, goal)
             c0 = contacts.count
             t0 = s.now()
+            # asked 3 cm / 2 deg by its own estimate, so that the true pose is within the
+            # issue's 5 cm / 3 deg with the localisation's error on top
             res, reason = _send_and_wait(
-                s, "navigate_to", m.NavigateGoal(stamp=t0, pose=np.array(goal)), 300.0
-            )
+                s,
+                "navigate_to",
+                m.NavigateGoal(stamp=t0, pose=np.array(goal), tolerance_xy=GOAL_TOL[0],
+                               tolerance_yaw=GOAL_TOL[1]),
+                300.0,
+            )  # fmt: skip
             s.wait_sim(s.now() + 0.5)
             end = _gt_pose(s)
             err = math.hypot(end[0] - goal[0], end[1] - goal[1])
@@ -439,7 +446,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--approaches", type=int, default=20, help="approach trials per seed")
     ap.add_argument("--log", default="", help="file for the services' output")
     ap.add_argument("--record", default="", help="save the nav run's scans here (.npz)")
+    ap.add_argument("--pictures", default="", help="draw the map and a run into this folder")
+    ap.add_argument("--pictures-only", action="store_true",
+                    help="only draw the pictures (from --record's file)")  # fmt: skip
     args = ap.parse_args(argv)
+    if args.pictures_only:
+        for p in draw_pictures(args.record, args.pictures or "docs/img"):
+            print(p)
+        return 0
     seeds = [int(x) for x in args.seeds.split(",") if x.strip()]
     parts = {p.strip() for p in args.parts.split(",") if p.strip()}
     unknown = parts - {"map", "nav", "reloc"}
@@ -458,11 +472,88 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         log.close()
     res["summary"] = _summary(res)
+    if args.pictures:
+        res["pictures"] = [str(p) for p in draw_pictures(args.record, args.pictures)]
     res["wall_s"] = round(time.monotonic() - t0, 1)
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps(res, indent=2) + "\n")
     print(json.dumps(res["summary"], indent=2))
     return 0
+
+
+# ------------------------------------------------------------------ pictures
+def draw_pictures(record: str | Path, out_dir: str | Path, goals_shown: int = 8) -> list[Path]:
+    """``navigation_map.png`` (the committed map beside the true floor plan, differences
+    coloured) and ``navigation_run.png`` (a recorded navigation run on the map: the true
+    path, navigation's own estimate and the goals)."""
+    import cv2
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    plan = true_floor_plan()
+    occ, geo = load_map(resolve_map_path(NavigationConfig().node.map))
+    g = plan.geometry
+    # the map resampled onto the plan's raster (both in the floor-plan frame)
+    rows, cols = np.mgrid[0 : g.height, 0 : g.width]
+    centres = g.cell_center(rows.ravel(), cols.ravel())
+    mr, mc = geo.to_cell(centres)
+    inside = geo.inside(mr, mc)
+    mp = np.full(len(centres), -1, dtype=np.int16)
+    mp[inside] = occ[mr[inside], mc[inside]]
+    mp = mp.reshape(g.shape)
+    scale = 6
+
+    def canvas() -> np.ndarray:
+        return np.full(g.shape + (3,), 255, dtype=np.uint8)
+
+    truth = canvas()
+    truth[plan.mask] = (40, 40, 40)
+    built = canvas()
+    built[mp < 0] = (170, 170, 170)
+    built[mp >= 65] = (40, 40, 40)
+    near_true = ndimage.binary_dilation(plan.mask, iterations=1)
+    near_map = ndimage.binary_dilation(mp >= 65, iterations=1)
+    built[(mp >= 65) & ~near_true] = (0, 0, 230)  # red (BGR): mapped, not there
+    missed = plan.mask & ~near_map & ndimage.binary_dilation(mp >= 0, iterations=2)
+    truth[missed] = (230, 120, 0)  # blue: there, seen around, not mapped
+
+    def big(img: np.ndarray, title: str) -> np.ndarray:
+        im = cv2.resize(img[::-1], None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+        bar = np.full((36, im.shape[1], 3), 255, dtype=np.uint8)
+        cv2.putText(bar, title, (8, 26), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (0, 0, 0), 2)
+        return np.vstack([bar, im])
+
+    sep = np.full((g.height * scale + 36, 12, 3), 255, dtype=np.uint8)
+    p1 = out / "navigation_map.png"
+    cv2.imwrite(str(p1), np.hstack([big(truth, "true floor plan at the LiDAR's height "
+                                                "(blue: not mapped)"), sep,
+                                    big(built, "map built by exploring (red: not there)")]))  # fmt: skip
+    paths = [p1]
+    d = dict(np.load(record)) if Path(record).is_file() else {}
+    if d:
+        img = big(built, "a navigation run: true path (blue), navigation's estimate (orange)")
+
+        def px(xy: np.ndarray) -> np.ndarray:
+            fr = g.to_fractional(xy)
+            return np.stack([(fr[:, 1] + 0.5) * scale, (g.height - fr[:, 0] - 0.5) * scale + 36],
+                            axis=1).astype(np.int32)  # fmt: skip
+
+        gt, nav = d["gt"], d["nav"]
+        n = len(gt)
+        # the first ``goals_shown`` goals: cut where the robot stood still the n-th time
+        speed = np.hypot(*np.diff(gt[:, :2], axis=0).T)
+        stops = np.flatnonzero((speed[1:] < 1e-3) & (speed[:-1] >= 1e-3))
+        end = int(stops[min(goals_shown, len(stops)) - 1]) + 2 if len(stops) else n
+        cv2.polylines(img, [px(gt[:end, :2])], False, (200, 80, 0), 2)
+        ok = ~np.isnan(nav[:end, 0])
+        cv2.polylines(img, [px(nav[:end][ok, :2])], False, (0, 140, 255), 1)
+        for k in stops[: goals_shown - 1]:
+            cv2.drawMarker(img, tuple(px(gt[k + 1 : k + 2, :2])[0]), (0, 0, 220),
+                           cv2.MARKER_TILTED_CROSS, 14, 2)  # fmt: skip
+        p2 = out / "navigation_run.png"
+        cv2.imwrite(str(p2), img)
+        paths.append(p2)
+    return paths
 
 
 if __name__ == "__main__":
