@@ -104,10 +104,19 @@ def map_scores(
 
 def random_free_poses(plan: FloorPlan, n: int, seed: int, clearance: float = 0.5) -> list[Pose2]:
     """``n`` poses in the house's reachable free space at least ``clearance`` from any
-    obstacle, alternating between the two rooms (x < 5 and x > 5)."""
+    obstacle or table top, alternating between the two rooms (x < 5 and x > 5)."""
     rng = np.random.default_rng([seed, 0x4E41])
     free = _reachable_free(plan, HOUSE_START[:2])
-    dist = ndimage.distance_transform_edt(~plan.mask) * plan.geometry.resolution
+    # under a table the LiDAR sees only legs, but the robot (and its arm) do not fit there
+    from quadmanip.sim.world.house import load_house
+
+    blocked = plan.mask.copy()
+    for t in load_house().tables:
+        lo = np.asarray(t.center) - np.asarray(t.size) / 2
+        hi = np.asarray(t.center) + np.asarray(t.size) / 2
+        (r0, r1), (c0, c1) = plan.geometry.to_cell(np.array([lo, hi]))
+        blocked[max(r0, 0) : r1 + 1, max(c0, 0) : c1 + 1] = True
+    dist = ndimage.distance_transform_edt(~blocked) * plan.geometry.resolution
     ok = free & (dist >= clearance)
     rows, cols = np.nonzero(ok)
     centres = plan.geometry.cell_center(rows, cols)
