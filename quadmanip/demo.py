@@ -9,7 +9,8 @@ under ``qm/**`` like a real robot's operator console would, prints a table of wh
 everything cleanly. With no service registered yet it still exercises the real thing: an
 echo process answers joint commands through the router and the table shows the round trip.
 
-The demo picks up services automatically from ``quadmanip.services_registry``; it never
+The demo starts the services ``quadmanip up`` starts (configs/launch.toml) that are in
+``quadmanip.services_registry`` and importable; it never
 reads ground truth for anything but display (``.../sim/gt/**`` keys are listed like any
 other traffic).
 """
@@ -31,7 +32,12 @@ import numpy as np
 from quadmanip import services_registry
 from quadmanip.common import keys
 from quadmanip.demo_operator import DemoOperator
-from quadmanip.launcher import Launcher, free_endpoint, install_stop_signals
+from quadmanip.launcher import (
+    Launcher,
+    free_endpoint,
+    install_stop_signals,
+    load_launch_config,
+)
 
 # Extra arguments per service when the demo runs it. With a leg controller the sim runs in
 # lockstep (it waits for every leg command, so a slow machine slows the demo down instead of
@@ -265,9 +271,14 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
     out_dir.mkdir(parents=True, exist_ok=True)
     for old in [*out_dir.glob("*.png"), *out_dir.glob("*.rrd")]:
         old.unlink()
+    # what `quadmanip up` starts (configs/launch.toml), of what is registered and importable:
+    # the registry also holds the hardware adapter and its test robot, which take the sim's
+    # place and must not run beside it
     registry = services_registry.available()
-    names = [n for n, problem in registry.items() if problem is None]
-    for n, problem in registry.items():
+    listed = load_launch_config().services
+    names = [n for n in listed if registry.get(n, "not registered") is None]
+    for n in listed:
+        problem = registry.get(n, "not registered yet")
         if problem:
             print(f"demo: skipping {n}: {problem}", file=out)
     listen = args.listen or free_endpoint()

@@ -122,14 +122,27 @@ class Placement:
 
 
 @dataclass(frozen=True)
+class Obstacle:
+    """A fixed box standing on the floor that is not part of the house (a moved-in chest,
+    a box left in the corridor): centre (x, y) and size (x, y, z) in metres. Scenarios use
+    them to test navigation against what its map does not have."""
+
+    name: str
+    center: tuple[float, float]
+    size: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
 class Scenario:
     """A trial's initial world: name, seed, the placed objects and, optionally, where the
-    robot starts (x, y in m, yaw in deg; ``None``: the house config's ``robot_start``)."""
+    robot starts (x, y in m, yaw in deg; ``None``: the house config's ``robot_start``) and
+    fixed obstacles that are not part of the house."""
 
     name: str
     seed: int
     objects: tuple[Placement, ...]
     robot_start: tuple[float, float, float] | None = None
+    obstacles: tuple[Obstacle, ...] = ()
 
     @property
     def object_names(self) -> tuple[str, ...]:
@@ -301,7 +314,7 @@ def load_scenario_file(path: str | Path, catalogue: Catalogue | None = None) -> 
         doc = tomllib.loads(path.read_text())
     except (OSError, tomllib.TOMLDecodeError) as exc:
         raise ValueError(f"scenario file {path}: {exc}") from exc
-    unknown = set(doc) - {"name", "seed", "robot_start", "objects"}
+    unknown = set(doc) - {"name", "seed", "robot_start", "objects", "obstacles"}
     if unknown:
         raise ValueError(f"scenario file {path}: unknown keys {sorted(unknown)}")
     start = doc.get("robot_start")
@@ -331,11 +344,23 @@ def load_scenario_file(path: str | Path, catalogue: Catalogue | None = None) -> 
             quat = tuple(quat_from_yaw(yaw).tolist())
         pos = _floats(o.get("position"), 3, f"{where}: position")
         placements.append(Placement(name, str(o.get("surface", "floor")), pos, quat))  # type: ignore[arg-type]
+    obstacles: list[Obstacle] = []
+    for i, o in enumerate(doc.get("obstacles", [])):
+        where = f"{path}: obstacles[{i}]"
+        bad = set(o) - {"name", "center", "size"}
+        if bad:
+            raise ValueError(f"{where}: unknown keys {sorted(bad)}")
+        size = _floats(o.get("size"), 3, f"{where}: size")
+        if min(size) <= 0.0:
+            raise ValueError(f"{where}: size must be positive, got {size}")
+        center = _floats(o.get("center"), 2, f"{where}: center")
+        obstacles.append(Obstacle(str(o.get("name", f"box{i}")), center, size))  # type: ignore[arg-type]
     return Scenario(
         name=str(doc.get("name", path.stem)),
         seed=int(doc.get("seed", 0)),
         objects=tuple(placements),
         robot_start=robot_start,  # type: ignore[arg-type]
+        obstacles=tuple(obstacles),
     )
 
 
@@ -360,6 +385,14 @@ def save_scenario_file(scenario: Scenario, path: str | Path) -> Path:
             f"surface = {json.dumps(p.surface)}",
             f"position = {arr(p.position)}",
             f"quat = {arr(p.quat)}",
+        ]
+    for b in scenario.obstacles:
+        lines += [
+            "",
+            "[[obstacles]]",
+            f"name = {json.dumps(b.name)}",
+            f"center = {arr(b.center)}",
+            f"size = {arr(b.size)}",
         ]
     path = Path(path)
     path.write_text("\n".join(lines) + "\n")

@@ -19,6 +19,8 @@ Parts (``--parts``, default all):
   localisation: the true pose against navigation's map pose at every scan; the scans
   are replayed afterwards through the particle filter and the planner for their times.
 * ``approach``: targets 0.5-1.5 m away in the odom frame; final true error.
+* ``obstacles``: a box that is not in the map on the way (passed around, no contact),
+  and a box filling the doorway (``blocked`` with a reason within 30 s, standing).
 * ``reloc``: navigation started 1 m and 90 deg off; the harness walks the robot (velocity
   commands, a safe straight line in the open); time until the map pose is within 5 cm
   and 2 deg and stays there.
@@ -55,7 +57,7 @@ from quadmanip.services.navigation.map_io import load_map
 from quadmanip.services.navigation.node import resolve_map_path
 from quadmanip.services.navigation.path_follower import FollowerConfig
 from quadmanip.services.navigation.scan import lidar_mount, scan_points
-from quadmanip.sim.scenarios import Scenario
+from quadmanip.sim.scenarios import Obstacle, Scenario
 from quadmanip.testbench.floor_plan import FloorPlan, true_floor_plan
 from quadmanip.testbench.map_house import nav_stack, run_mapping
 from quadmanip.testbench.nav_record import NavRecorder
@@ -365,6 +367,62 @@ def _algo_times(d: dict[str, np.ndarray], occ: np.ndarray, geo: Any) -> dict[str
     }
 
 
+def part_obstacles(seed: int, log: Any) -> dict[str, Any]:
+    """A box that is not in the map stands on the way (it must be passed around without
+    touching it), and a box fills the doorway (the goal beyond must end ``blocked`` with
+    a reason within 30 s, the robot standing)."""
+    out: dict[str, Any] = {}
+    box = Scenario("box-in-the-way", seed, (),
+                   obstacles=(Obstacle("box", (2.4, 1.2), (0.5, 0.5, 0.6)),))  # fmt: skip
+    with nav_stack(box, log, [], extra_sim=CONTACTS_ON) as s:
+        contacts = _Contacts(s)
+        goal = (4.0, 1.2, 0.0)
+        res, reason = _send_and_wait(s, "navigate_to", m.NavigateGoal(
+            stamp=s.now(), pose=np.array(goal), tolerance_xy=GOAL_TOL[0],
+            tolerance_yaw=GOAL_TOL[1]), 200.0)  # fmt: skip
+        s.wait_sim(s.now() + 0.5)
+        end = _gt_pose(s)
+        err = math.hypot(end[0] - goal[0], end[1] - goal[1])
+        out["box"] = {
+            "status": None if res is None else res.status,
+            "reason": reason,
+            "error_m": round(err, 4),
+            "contacts": contacts.count,
+            "contact_examples": contacts.examples,
+            "passed": bool(
+                res is not None
+                and res.status == "succeeded"
+                and err <= 0.05
+                and contacts.count == 0
+            ),  # fmt: skip
+        }
+        print(f"  box in the way: {out['box']}", flush=True)
+    door = Scenario("doorway-blocked", seed, (),
+                    obstacles=(Obstacle("door", (5.0, 2.0), (0.3, 1.3, 0.8)),))  # fmt: skip
+    with nav_stack(door, log, [], extra_sim=CONTACTS_ON) as s:
+        contacts = _Contacts(s)
+        t0 = s.now()
+        res, reason = _send_and_wait(s, "navigate_to", m.NavigateGoal(
+            stamp=t0, pose=np.array([8.3, 2.0, 0.0])), 200.0)  # fmt: skip
+        took = s.now() - t0
+        s.wait_sim(s.now() + 1.0)
+        standing = bool(s.pose("base")[0][2] > 0.25 and s.tilt_deg() < 10.0)
+        outcome = None if res is None or res.result is None else res.result.outcome
+        out["doorway"] = {
+            "status": None if res is None else res.status,
+            "outcome": outcome,
+            "reason": reason,
+            "time_s": round(took, 2),
+            "standing": standing,
+            "contacts": contacts.count,
+            "passed": bool(
+                outcome == "blocked" and took <= 30.0 and standing and contacts.count == 0
+            ),  # fmt: skip
+        }
+        print(f"  doorway blocked: {out['doorway']}", flush=True)
+    return out
+
+
 def part_reloc(seed: int, log: Any) -> dict[str, Any]:
     """Navigation started 1 m and 90 deg off (with a spread that covers it, as a person
     gives a rough pose), and started with no pose at all (global localisation)."""
@@ -437,6 +495,10 @@ def _summary(res: dict[str, Any]) -> dict[str, Any]:
         algo = res["nav"].get("algo", {})
         s["plan_ms_p50"] = algo.get("plan_ms_p50")
         s["loc_update_ms_p50"] = algo.get("loc_update_ms_p50")
+    if "obstacles" in res:
+        s["obstacle_passed"] = res["obstacles"]["box"]["passed"]
+        s["doorway_blocked_reported"] = res["obstacles"]["doorway"]["passed"]
+        s["doorway_blocked_time_s"] = res["obstacles"]["doorway"]["time_s"]
     if "reloc" in res:
         s["relocalized"] = res["reloc"]["converged"]
         s["relocalize_time_s"] = res["reloc"]["time_s"]
@@ -450,7 +512,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--json", required=True, help="output file")
     ap.add_argument("--seeds", default="0", help="comma-separated scenario seeds")
-    ap.add_argument("--parts", default="map,nav,reloc", help="map, nav, reloc")
+    ap.add_argument("--parts", default="map,nav,obstacles,reloc",
+                    help="map, nav, obstacles, reloc")  # fmt: skip
     ap.add_argument("--goals", type=int, default=50, help="navigation goals per seed")
     ap.add_argument("--approaches", type=int, default=20, help="approach trials per seed")
     ap.add_argument("--log", default="", help="file for the services' output")
@@ -465,7 +528,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     seeds = [int(x) for x in args.seeds.split(",") if x.strip()]
     parts = {p.strip() for p in args.parts.split(",") if p.strip()}
-    unknown = parts - {"map", "nav", "reloc"}
+    unknown = parts - {"map", "nav", "obstacles", "reloc"}
     if unknown or not seeds:
         ap.error(f"unknown parts {sorted(unknown)}" if unknown else "no seeds")
     log = open(args.log, "w") if args.log else open("/dev/null", "w")  # noqa: SIM115
@@ -476,6 +539,8 @@ def main(argv: list[str] | None = None) -> int:
             res["map"] = part_map(seeds, log)
         if "nav" in parts:
             res["nav"] = part_nav(seeds[0], args.goals, args.approaches, log, args.record)
+        if "obstacles" in parts:
+            res["obstacles"] = part_obstacles(seeds[0], log)
         if "reloc" in parts:
             res["reloc"] = part_reloc(seeds[0], log)
     finally:

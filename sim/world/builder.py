@@ -24,6 +24,7 @@ from quadmanip.sim.world.house import (
     DepositRegion,
     HouseConfig,
     Surface,
+    add_obstacle,
     build_house,
     load_house,
 )
@@ -187,6 +188,8 @@ def build_world(
 
     names: list[str] = []
     if scenario is not None:
+        for b in scenario.obstacles:
+            add_obstacle(spec, b.name, b.center, b.size)
         pads = pad_contacts(spec, catalogue)  # pad x object pairs (None without the robot)
         for p in scenario.objects:
             add_object(

@@ -18,6 +18,7 @@ from quadmanip.common.config import load_config
 from quadmanip.common.rotations import mat_to_quat, quat_from_yaw
 
 __all__ = [
+    "OBSTACLE_RGBA",
     "Block",
     "Cabinet",
     "CameraSpec",
@@ -30,6 +31,7 @@ __all__ = [
     "RobotStart",
     "Room",
     "Surface",
+    "add_obstacle",
     "Table",
     "Wall",
     "build_house",
@@ -513,6 +515,25 @@ def _add_drawer(cab_body: mujoco.MjsBody, cab: Cabinet, dr: Drawer, layout: dict
             half_size=((depth - t_front) / 2 - t, width / 2 - t, (inner_top - t) / 2),
             support_body=name,
         )
+    )
+
+
+OBSTACLE_RGBA = (0.78, 0.36, 0.20, 1.0)
+
+
+def add_obstacle(
+    spec: mujoco.MjSpec,
+    name: str,
+    center: tuple[float, float],
+    size: tuple[float, float, float],
+) -> mujoco.MjsGeom:
+    """A fixed box on the floor that is not part of the house (a scenario's obstacle)."""
+    return _box(
+        spec.worldbody,
+        f"obstacle/{name}",
+        (center[0], center[1], size[2] / 2),
+        (size[0] / 2, size[1] / 2, size[2] / 2),
+        OBSTACLE_RGBA,
     )
 
 

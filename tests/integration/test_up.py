@@ -13,7 +13,7 @@ import psutil
 import pytest
 from quadmanip import services_registry
 from quadmanip.common.bus import Bus, BusConfig
-from quadmanip.launcher import free_endpoint
+from quadmanip.launcher import free_endpoint, load_launch_config
 
 pytestmark = pytest.mark.integration
 
@@ -94,7 +94,11 @@ def stack(tmp_path):
 
 
 def _expected_children() -> set[str]:
-    return {"router", *(n for n, p in services_registry.available().items() if p is None)}
+    """The router and every service of configs/launch.toml's list that is registered and
+    importable (profiles such as unitree-sim start others)."""
+    listed = set(load_launch_config().services)
+    ready = {n for n, p in services_registry.available().items() if p is None}
+    return {"router", *(listed & ready)}
 
 
 def _wait_alive(endpoint: str, services: set[str], timeout: float) -> set[str]:

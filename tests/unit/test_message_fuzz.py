@@ -248,6 +248,7 @@ unit_vec = st.lists(st.floats(-1, 1), min_size=3, max_size=3).map(
     lambda v: np.array(v) / np.linalg.norm(v) if np.linalg.norm(v) > 1e-3 else np.array([1.0, 0, 0])
 )
 nonneg = st.floats(0.0, allow_infinity=False)
+positive = st.floats(1e-6, 1e6)
 
 STRATEGIES: dict[type[Message], st.SearchStrategy] = {
     m.Clock: auto(m.Clock),
@@ -282,6 +283,27 @@ STRATEGIES: dict[type[Message], st.SearchStrategy] = {
     m.JudgeReport: judge(),
     m.LocomotionHealth: health(),
     m.RobotStatus: robot_status(),
+    m.OccupancyGrid: auto(
+        m.OccupancyGrid,
+        resolution=st.floats(0.005, 1.0),
+        data=hnp.arrays(
+            np.int8,
+            hnp.array_shapes(min_dims=2, max_dims=2, max_side=6),
+            elements=st.integers(-1, 100),
+        ),
+    ),
+    m.MapPose: auto(m.MapPose),
+    m.Path: auto(m.Path),
+    m.NavigateGoal: auto(m.NavigateGoal, tolerance_xy=positive, tolerance_yaw=positive),
+    m.ApproachGoal: auto(
+        m.ApproachGoal,
+        standoff=st.floats(0.0, 3.0),
+        heading=st.floats(-12.0, 12.0),
+        tolerance_xy=positive,
+        tolerance_yaw=positive,
+    ),
+    m.ExploreGoal: auto(m.ExploreGoal),
+    m.NavigationResult: auto(m.NavigationResult),
 }
 
 # Messages that may ride inside ActionGoal.goal / ActionResult.result in the fuzz (no

@@ -176,6 +176,24 @@ def test_scenario_file_round_trip_and_robot_start(tmp_path):
     assert 2 * math.atan2(q[adr + 6], q[adr + 3]) == pytest.approx(math.radians(30.0))
 
 
+def test_scenario_obstacles_round_trip_and_stand_in_the_world(tmp_path):
+    import mujoco
+    from quadmanip.sim.scenarios import Obstacle, Scenario, load_scenario_file, save_scenario_file
+
+    scn = Scenario("corridor", 0, (), obstacles=(Obstacle("box", (2.5, 1.2), (0.4, 0.3, 0.6)),))
+    path = save_scenario_file(scn, tmp_path / "corridor.toml")
+    assert load_scenario_file(path) == scn
+    world = build_world(scn, robot=False)
+    data = world.initial_data()
+    g = world.model.geom("obstacle/box")
+    assert world.model.geom_size[g.id] == pytest.approx([0.2, 0.15, 0.3])
+    assert data.geom_xpos[g.id] == pytest.approx([2.5, 1.2, 0.3])
+    # a fixed box: it stands on the floor and does not move
+    for _ in range(50):
+        mujoco.mj_step(world.model, data)
+    assert data.geom_xpos[g.id] == pytest.approx([2.5, 1.2, 0.3])
+
+
 def test_scenario_file_yaw_form(tmp_path):
     from quadmanip.sim.scenarios import load_scenario_file
 
@@ -203,6 +221,8 @@ def test_scenario_file_yaw_form(tmp_path):
             "placed twice",
         ),
         ("robot_start = [1, 2]", "robot_start: expected 3"),
+        ("[[obstacles]]\ncenter = [1, 1]\nsize = [0.4, 0.4, 0]", "size must be positive"),
+        ("[[obstacles]]\ncenter = [1, 1]\nsize = [0.4, 0.4, 0.6]\nmass = 3", "mass"),
         ("robots = 1", "unknown keys ['robots']"),
         ("name = ", "scenario file"),
     ],

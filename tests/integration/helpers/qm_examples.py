@@ -75,6 +75,11 @@ _CROSS_FIELD: dict[str, dict[str, Any]] = {
         "valid": False,
     },
     "qm.RobotStatus": {"ticks": 20, "stale_ticks": 3},
+    "qm.ApproachGoal": {"standoff": 0.5, "heading": 1.5},
+    "qm.OccupancyGrid": {
+        "resolution": 0.05,
+        "data": (np.arange(N_ROWS * N_COLS) % 102 - 1).astype(np.int8).reshape(N_ROWS, N_COLS),
+    },
 }
 
 
