@@ -153,8 +153,6 @@ class NavigationNode(Service):
         self.map_to_odom: Pose2 = (0.0, 0.0, 0.0)
         if nc.mode == "mapping":
             self.slam = OnlineSlam(cfg.slam)
-            self.map_grid = self.slam.occupancy()
-            self.map_geo = self.slam.geometry
             self.costmap: Costmap | None = None
             self.static_costmap: Costmap | None = None
         else:
@@ -334,28 +332,15 @@ class NavigationNode(Service):
         """The costmap of the SLAM map's known area (+ a margin): the planner's graph
         stays small however large the SLAM grid is."""
         assert self.slam is not None
-        bounds = self.slam.grid.known_bounds()
-        if bounds is None:
+        if self.slam.grid.known_bounds() is None:
             return
-        geo = self.slam.geometry
-        pad = int(self.config.node.costmap_margin / geo.resolution)
-        r0, r1 = max(bounds[0] - pad, 0), min(bounds[1] + pad, geo.height)
-        c0, c1 = max(bounds[2] - pad, 0), min(bounds[3] + pad, geo.width)
-        occ = self.slam.occupancy()[r0:r1, c0:c1]
-        sub = GridGeometry(
-            geo.resolution,
-            geo.origin_x + c0 * geo.resolution,
-            geo.origin_y + r0 * geo.resolution,
-            c1 - c0,
-            r1 - r0,
-        )
+        occ, sub = self._map_view()
         # exploring: unknown space is crossable (at a cost); the LiDAR sees it as the robot
         # comes near. Lethal unknown made every frontier goal "blocked" as the robot's
         # projected footprint reached past the frontier.
         cfg = replace(self.config.costmap, unknown_is_lethal=False)
         self.costmap = Costmap(cfg, occ, sub)
         self.static_costmap = self.costmap
-        self.map_grid, self.map_geo = occ, sub
 
     # ------------------------------------------------------------------ loop
     def step(self) -> None:
@@ -460,8 +445,8 @@ class NavigationNode(Service):
             self.t_wall_costmap = wall
 
     def _map_view(self) -> tuple[np.ndarray, GridGeometry]:
-        """The map to publish: the saved map, or the SLAM grid's known part (+ a margin),
-        so that the message stays small however large the SLAM grid is."""
+        """The map: the saved one, or the SLAM grid's known part (+ a margin), so that
+        messages and costmaps stay small however large the SLAM grid is."""
         if self.slam is None:
             return self.map_grid, self.map_geo
         geo = self.slam.geometry
