@@ -78,6 +78,15 @@ def _reachable_free(plan: FloorPlan, start: tuple[float, float]) -> np.ndarray:
     return labels == labels[r, c]
 
 
+def visible_surface(plan: FloorPlan) -> np.ndarray:
+    """The obstacle cells a LiDAR can see: those facing free space at least 20 cm wide that
+    the robot can reach (the raster's 5 cm slits between the sofa or the shelf and the
+    wall, and the inside of the cabinet, cannot be looked into)."""
+    dist = ndimage.distance_transform_edt(~plan.mask) * plan.geometry.resolution
+    open_free = _reachable_free(plan, HOUSE_START[:2]) & (dist >= 0.1)
+    return plan.mask & ndimage.binary_dilation(open_free, iterations=3)
+
+
 def map_scores(
     occupancy: np.ndarray, geometry: Any, world_T_map: Pose2, plan: FloorPlan
 ) -> dict[str, float]:
@@ -93,12 +102,7 @@ def map_scores(
     precision = tp / max(len(rr), 1)
     pred = np.zeros_like(plan.mask)
     pred[rr[ins], cc[ins]] = True
-    # the surface a LiDAR can see: obstacle cells facing free space at least 20 cm wide
-    # (the raster's 5 cm slits between the sofa or the shelf and the wall, and the inside
-    # of the cabinet, cannot be looked into)
-    dist = ndimage.distance_transform_edt(~plan.mask) * plan.geometry.resolution
-    open_free = _reachable_free(plan, HOUSE_START[:2]) & (dist >= 0.1)
-    surface = plan.mask & ndimage.binary_dilation(open_free, iterations=3)
+    surface = visible_surface(plan)
     recall = float(ndimage.binary_dilation(pred, iterations=1)[surface].mean())
     f1 = 2 * precision * recall / max(precision + recall, 1e-9)
     return {"precision": round(precision, 4), "recall": round(recall, 4), "f1": round(f1, 4)}
@@ -588,8 +592,8 @@ def draw_pictures(record: str | Path, out_dir: str | Path, goals_shown: int = 8)
     near_true = ndimage.binary_dilation(plan.mask, iterations=1)
     near_map = ndimage.binary_dilation(mp >= 65, iterations=1)
     built[(mp >= 65) & ~near_true] = (0, 0, 230)  # red (BGR): mapped, not there
-    missed = plan.mask & ~near_map & ndimage.binary_dilation(mp >= 0, iterations=2)
-    truth[missed] = (230, 120, 0)  # blue: there, seen around, not mapped
+    missed = visible_surface(plan) & ~near_map
+    truth[missed] = (230, 120, 0)  # blue: visible, not mapped
 
     def big(img: np.ndarray, title: str) -> np.ndarray:
         im = cv2.resize(img[::-1], None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
