@@ -46,7 +46,6 @@ from quadmanip.services.navigation.config import NavigationConfig
 from quadmanip.services.navigation.costmap import Costmap, CostmapConfig
 from quadmanip.services.navigation.global_planner import plan_path
 from quadmanip.services.navigation.grid import (
-    GridGeometry,
     Pose2,
     compose,
     invert,
@@ -59,7 +58,7 @@ from quadmanip.services.navigation.path_follower import FollowerConfig
 from quadmanip.services.navigation.scan import lidar_mount, scan_points
 from quadmanip.sim.scenarios import Obstacle, Scenario
 from quadmanip.testbench.floor_plan import FloorPlan, true_floor_plan
-from quadmanip.testbench.map_house import nav_stack, run_mapping
+from quadmanip.testbench.map_house import grid_geometry, nav_stack, run_mapping
 from quadmanip.testbench.nav_record import NavRecorder
 from quadmanip.testbench.stack import StackRun
 from scipy import ndimage
@@ -214,10 +213,8 @@ def part_map(seeds: list[int], log: Any) -> dict[str, Any]:
         row: dict[str, Any] = {"seed": seed, "status": run.status, "reason": run.reason,
                                "explore_time_s": round(run.explore_time_s, 1)}  # fmt: skip
         if run.grid is not None:
-            g = run.grid
-            geo = GridGeometry(float(g.resolution), float(g.origin[0]), float(g.origin[1]),
-                               int(g.data.shape[1]), int(g.data.shape[0]))  # fmt: skip
-            row.update(map_scores(np.asarray(g.data), geo, run.world_T_map, plan))
+            geo = grid_geometry(run.grid)
+            row.update(map_scores(np.asarray(run.grid.data), geo, run.world_T_map, plan))
         print(f"  {row}", flush=True)
         runs.append(row)
     return {"runs": runs}

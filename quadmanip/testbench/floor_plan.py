@@ -18,6 +18,7 @@ import mujoco
 import numpy as np
 from quadmanip.common import robot_description as rd
 from quadmanip.services.navigation.grid import GridGeometry, Pose2
+from quadmanip.services.navigation.scan import lidar_height_above_base
 
 __all__ = ["FloorPlan", "lidar_height", "simulate_scan", "true_floor_plan"]
 
@@ -25,12 +26,8 @@ __all__ = ["FloorPlan", "lidar_height", "simulate_scan", "true_floor_plan"]
 def lidar_height() -> float:
     """Height of the LiDAR above the floor with the robot standing in its home pose."""
     model = rd.load_mujoco_model()
-    data = mujoco.MjData(model)
-    data.qpos[:] = rd.home_qpos(model)
-    mujoco.mj_forward(model, data)
-    base_z = float(data.qpos[rd.free_joint_qpos_index(model) + 2])
-    site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, rd.LIDAR_SITE)
-    return base_z + float(model.site_pos[site][2])
+    base_z = float(rd.home_qpos(model)[rd.free_joint_qpos_index(model) + 2])
+    return base_z + lidar_height_above_base()
 
 
 class FloorPlan:

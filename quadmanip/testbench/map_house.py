@@ -16,6 +16,7 @@ once (tooling; the services never read it). The map itself comes from the LiDAR 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -33,7 +34,7 @@ from quadmanip.testbench.nav_record import NavRecorder
 from quadmanip.testbench.places_draft import draft_places
 from quadmanip.testbench.stack import LIDAR_ONLY, StackRun
 
-__all__ = ["MappingRun", "main", "run_mapping"]
+__all__ = ["MappingRun", "grid_geometry", "main", "run_mapping"]
 
 NAV_SERVICES = ("sim", "locomotion", "navigation")
 
@@ -146,19 +147,23 @@ def run_mapping(
     return out
 
 
+def grid_geometry(grid: m.OccupancyGrid) -> GridGeometry:
+    """Where an ``OccupancyGrid`` message's cells lie (its origin yaw is 0 here)."""
+    rows, cols = grid.data.shape
+    return GridGeometry(float(grid.resolution), float(grid.origin[0]), float(grid.origin[1]),
+                        int(cols), int(rows))  # fmt: skip
+
+
 def save_in_world_frame(run: MappingRun, stem: Path) -> dict[str, Path]:
     """Save the map with its origin shifted into the floor-plan frame (the rotation of the
     SLAM start, a fraction of a degree, is not resampled; it is reported)."""
     assert run.grid is not None
-    g = run.grid
-    geo = GridGeometry(
-        float(g.resolution),
-        float(g.origin[0]) + run.world_T_map[0],
-        float(g.origin[1]) + run.world_T_map[1],
-        int(g.data.shape[1]),
-        int(g.data.shape[0]),
+    geo = dataclasses.replace(
+        grid_geometry(run.grid),
+        origin_x=float(run.grid.origin[0]) + run.world_T_map[0],
+        origin_y=float(run.grid.origin[1]) + run.world_T_map[1],
     )
-    paths = save_map(stem, np.asarray(g.data), geo)
+    paths = save_map(stem, np.asarray(run.grid.data), geo)
     header = (
         f"Places of {stem.name}.yaml, in its map frame (the house's floor-plan frame).\n"
         "Drafted by `quadmanip map` from the house description; edit by hand as needed:\n"
