@@ -290,6 +290,9 @@ _TABLE: tuple[Topic, ...] = (
     row("navigation", "pose", m.MapPose, "sensor", "out", "base pose in the map + map->odom"),
     row("navigation", "path", m.Path, "event", "out", "the planned path (map frame)"),
     row("navigation", "costmap", m.OccupancyGrid, "sensor", "out", "costmap (1 Hz)"),
+    # perception
+    row("perception", "detections", m.Detections, "sensor", "out", "detections per frame"),
+    row("perception", "objects", m.ObjectTracks, "event", "out", "object memory (2 Hz)"),
 )
 
 
@@ -303,6 +306,8 @@ TABLE = KeyTable(
         action_row("navigation", "navigate_to", m.NavigateGoal, "walk to a map pose or place"),
         action_row("navigation", "approach", m.ApproachGoal, "precise final approach (Alg. 5)"),
         action_row("navigation", "explore", m.ExploreGoal, "map the house (frontiers)"),
+        action_row("perception", "estimate_grasp", m.GraspRequest, "grasp pose (Sec. 4.3-4.6)"),
+        action_row("perception", "locate_handle", m.HandleRequest, "drawer handle from depth"),
     ),
 )
 """The product's key table."""

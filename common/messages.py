@@ -44,10 +44,13 @@ __all__ = [
     "BodyPoseCommand",
     "BodyVelocityCommand",
     "Clock",
+    "Detections",
     "Disturbance",
     "EmergencyStop",
     "DrawerGoal",
     "GraspGoal",
+    "GraspRequest",
+    "HandleRequest",
     "GripperCommand",
     "GroundTruthContacts",
     "GroundTruthPoses",
@@ -65,6 +68,7 @@ __all__ = [
     "LowState",
     "Message",
     "MessageError",
+    "ObjectTracks",
     "Odometry",
     "Payload",
     "PlaceGoal",
@@ -690,6 +694,96 @@ class NavigationResult(Message):
     duration: float = 0.0
 
 
+# --------------------------------------------------------------------------- perception
+
+
+def _same_rows(msg: Message, what: str, n: int, *fields: str) -> None:
+    for f in fields:
+        if len(getattr(msg, f)) != n:
+            raise MessageError(f"{what}.{f} has {len(getattr(msg, f))} rows, labels have {n}")
+
+
+@message("qm.Detections", (1, 0))
+class Detections(Message):
+    """The detector's output for one camera frame (``frame_stamp``): per object its class
+    label, score and box (pixels x0, y0, x1, y1), and, where its depth pixels allowed,
+    its centroid and axis-aligned extent in the ``odom`` frame (``located`` 0 otherwise,
+    then centroid and extent are 0)."""
+
+    stamp: float
+    camera: str
+    frame_stamp: float = 0.0
+    labels: list[str] = string_list(default_empty=True)
+    scores: np.ndarray = array("f4", (None,), default=np.zeros(0))
+    boxes: np.ndarray = array("f4", (None, 4), default=np.zeros((0, 4)))
+    centroids: np.ndarray = array("f8", (None, 3), default=np.zeros((0, 3)))
+    extents: np.ndarray = array("f4", (None, 3), nonneg=True, default=np.zeros((0, 3)))
+    located: np.ndarray = array("u1", (None,), default=np.zeros(0))
+
+    def _check(self) -> None:
+        n = len(self.labels)
+        _same_rows(self, "Detections", n, "scores", "boxes", "centroids", "extents", "located")
+
+
+@message("qm.ObjectTracks", (1, 0))
+class ObjectTracks(Message):
+    """Perception's object memory: what it has seen where. Per track an id (stable while
+    it lives), class label, centroid and extent in ``odom``, confidence (0-1), number of
+    observations, last-seen stamp and whether it is ``confirmed`` (seen often enough to
+    act on). ``map_centroids`` are the centroids in the ``map`` frame when navigation has
+    published a pose (``in_map`` true), else equal to the odom ones."""
+
+    stamp: float
+    ids: np.ndarray = array("i4", (None,), default=np.zeros(0))
+    labels: list[str] = string_list(default_empty=True)
+    centroids: np.ndarray = array("f8", (None, 3), default=np.zeros((0, 3)))
+    extents: np.ndarray = array("f4", (None, 3), nonneg=True, default=np.zeros((0, 3)))
+    confidences: np.ndarray = array("f4", (None,), default=np.zeros(0))
+    observations: np.ndarray = array("i4", (None,), default=np.zeros(0))
+    last_seen: np.ndarray = array("f8", (None,), default=np.zeros(0))
+    confirmed: np.ndarray = array("u1", (None,), default=np.zeros(0))
+    map_centroids: np.ndarray = array("f8", (None, 3), default=np.zeros((0, 3)))
+    in_map: bool = False
+
+    def _check(self) -> None:
+        n = len(self.labels)
+        _same_rows(
+            self, "ObjectTracks", n, "ids", "centroids", "extents", "confidences",
+            "observations", "last_seen", "confirmed", "map_centroids",
+        )  # fmt: skip
+
+
+@message("qm.GraspRequest", (1, 0))
+class GraspRequest(Message):
+    """Ask perception for a grasp (its ``GraspGoal`` comes back as the action's result):
+    of track ``track_id`` (>= 0), else of the best-seen object of class ``label``, else of
+    the object nearest the image centre; seen by ``camera`` (``gripper_camera`` probes
+    vertically, ``front_camera`` horizontally; empty: the camera whose frame holds the
+    target best). ``max_distance`` (m, from the base; 0 = the configured reach) rejects
+    targets beyond it."""
+
+    stamp: float
+    track_id: int = -1
+    label: str = string(max_len=64, default="")
+    camera: str = string(choices=("", "gripper_camera", "front_camera"), default="")
+    max_distance: float = 0.0
+
+    def _check(self) -> None:
+        if not (math.isfinite(self.max_distance) and self.max_distance >= 0.0):
+            raise MessageError(f"GraspRequest.max_distance must be >= 0, got {self.max_distance}")
+
+
+@message("qm.HandleRequest", (1, 0))
+class HandleRequest(Message):
+    """Ask perception for a drawer handle near ``position`` (``base`` frame, within about
+    10 cm) from the front camera; the action's result is a ``DrawerGoal`` (handle position
+    and pull direction in the base frame, ``distance`` copied from here)."""
+
+    stamp: float
+    position: np.ndarray = array("f8", (3,))
+    distance: float = 0.15
+
+
 # --------------------------------------------------------------------------- sim test / ground truth
 
 
@@ -871,6 +965,8 @@ def example(cls: type[Message], **overrides: object) -> Message:
 
 _EXAMPLE_FIXUPS: dict[type[Message], dict[str, object]] = {
     DrawerGoal: {"pull_direction": [-1.0, 0.0, 0.0]},
+    Detections: {"labels": ["a"]},
+    ObjectTracks: {"labels": ["a"]},
     JudgeReport: {
         "total": 2,
         "in_place": ["a"],

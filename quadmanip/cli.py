@@ -30,6 +30,11 @@ BENCH_TARGETS: dict[str, str] = {
 ROUTER_TARGET = "quadmanip.common.router:main"
 SIM_TOOLS: dict[str, str] = {"snapshot": "quadmanip.sim.snapshot:main"}
 MAP_TARGET = "quadmanip.testbench.map_house:main"
+PERCEPTION_TOOLS: dict[str, str] = {
+    "dataset": "quadmanip.testbench.perception_dataset:main",
+    "train": "quadmanip.services.perception.train:main",
+    "evaluate": "quadmanip.testbench.detection_eval:main",
+}
 
 EXIT_UNAVAILABLE = 3
 
@@ -136,6 +141,11 @@ def _cmd_bench(args: argparse.Namespace, extra: list[str]) -> int:
 
 def _cmd_map(args: argparse.Namespace, extra: list[str]) -> int:
     return _dispatch(MAP_TARGET, [*args.args, *extra], "map")
+
+
+def _cmd_perception(args: argparse.Namespace, extra: list[str]) -> int:
+    target = PERCEPTION_TOOLS[args.tool]
+    return _dispatch(target, [*args.args, *extra], f"perception {args.tool}")
 
 
 def _cmd_sim(args: argparse.Namespace, extra: list[str]) -> int:
@@ -284,6 +294,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("args", nargs=argparse.REMAINDER, help="mapping arguments (try --help)")
     p.set_defaults(func=_cmd_map)
+
+    p = sub.add_parser(
+        "perception",
+        help="detector tools: render a labelled dataset, train, evaluate",
+        description="Perception tools: `dataset` renders labelled camera frames (COCO), "
+        "`train` trains the detector (resumable), `evaluate` scores it (try --help after each).",
+    )
+    p.add_argument("tool", choices=sorted(PERCEPTION_TOOLS), help="tool to run")
+    p.add_argument("args", nargs=argparse.REMAINDER, help="tool arguments (try --help)")
+    p.set_defaults(func=_cmd_perception)
 
     p = sub.add_parser("sim", help="simulator tools", description="Simulator tools.")
     p.add_argument("tool", choices=sorted(SIM_TOOLS), help="tool to run")

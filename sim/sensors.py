@@ -311,6 +311,48 @@ class RgbdRenderer:
             orientation=quat,
         )
 
+    def render_segmentation(self, data: mujoco.MjData, camera: str) -> np.ndarray:
+        """Per-pixel geom id of ``camera`` (-1 where no geom), row 0 at the top.
+
+        Labels for offline datasets and tests only: a real camera has no such image, and
+        the sim never publishes it.
+        """
+        cfg = self.cameras[camera]
+        self._gl.make_current()
+        self._cam.fixedcamid = self._cam_ids[camera]
+        mujoco.mjv_updateScene(
+            self.model,
+            data,
+            self._opt,
+            self._pert,
+            self._cam,
+            mujoco.mjtCatBit.mjCAT_ALL,
+            self._scene,
+        )
+        flags = (mujoco.mjtRndFlag.mjRND_SEGMENT, mujoco.mjtRndFlag.mjRND_IDCOLOR)
+        for f in flags:
+            self._scene.flags[f] = 1
+        try:
+            rect = mujoco.MjrRect(0, 0, cfg.width, cfg.height)
+            mujoco.mjr_render(rect, self._scene, self._ctx)
+            rgb = np.empty((cfg.height, cfg.width, 3), np.uint8)
+            mujoco.mjr_readPixels(rgb, None, rect, self._ctx)
+        finally:
+            for f in flags:
+                self._scene.flags[f] = 0
+        # with IDCOLOR each scene geom is drawn in the colour of its index + 1
+        idx = rgb[..., 0].astype(np.int64) + (rgb[..., 1].astype(np.int64) << 8)
+        idx += rgb[..., 2].astype(np.int64) << 16
+        idx -= 1
+        n = self._scene.ngeom
+        lut = np.full(n + 1, -1, np.int64)
+        for i in range(n):
+            g = self._scene.geoms[i]
+            if g.objtype == mujoco.mjtObj.mjOBJ_GEOM:
+                lut[i] = g.objid
+        idx[(idx < 0) | (idx >= n)] = n
+        return np.ascontiguousarray(np.flipud(lut[idx]))
+
     def _linearize(self, zbuf: np.ndarray, cfg: CameraConfig) -> np.ndarray:
         """Reverse-Z buffer (1 at near, 0 at far) → metric depth, 0 where no return."""
         extent = self.model.stat.extent

@@ -36,6 +36,9 @@ QUIET_SIM = (
     "--set", "sensors.front_camera.rate=0", "--set", "sensors.gripper_camera.rate=0",
     "--set", "sensors.lidar.rate=0", "--set", "ground_truth.contacts_rate=0",
 )  # fmt: skip
+CAMERAS_ONLY = (
+    "--set", "sensors.lidar.rate=0", "--set", "ground_truth.contacts_rate=0",
+)  # fmt: skip
 LIDAR_ONLY = (
     "--set", "sensors.front_camera.rate=0", "--set", "sensors.gripper_camera.rate=0",
     "--set", "ground_truth.contacts_rate=0",
@@ -67,8 +70,10 @@ class ActionOutcome:
         t_goal: float,
         t_end: float,
         feedback: Sequence[m.ActionFeedback] = (),
+        result: m.Message | None = None,
     ) -> None:
         self.accepted = accepted
+        self.result = result  # the ActionResult's message (e.g. perception's GraspGoal)
         self.status = status
         self.reason = reason
         self.t_goal = t_goal
@@ -338,7 +343,8 @@ class StackRun:
 
     # ------------------------------------------------------------------ actions
     def act(self, action: str, goal: m.Message, timeout_s: float = 300.0) -> ActionOutcome:
-        """Send ``goal`` to manipulation action ``action`` and wait for its result."""
+        """Send ``goal`` to action ``action`` (of any service in the stack) and wait for
+        its result."""
         t0 = self.now()
         h = self.actions[action].send_goal(goal, timeout=5.0)
         if not h.accepted:
@@ -350,7 +356,7 @@ class StackRun:
             if time.monotonic() > deadline:
                 raise StackError(f"{action}: no result after {timeout_s:.0f} s")
             res = h.result(timeout=0.5)
-        return ActionOutcome(True, res.status, res.reason, t0, self.now(), h.feedback)
+        return ActionOutcome(True, res.status, res.reason, t0, self.now(), h.feedback, res.result)
 
     def place_within_reach(
         self, target: np.ndarray, yaw: float | None = None, attempts: int = 4

@@ -175,6 +175,19 @@ def gt_poses(draw: st.DrawFn) -> m.GroundTruthPoses:
 
 
 @st.composite
+def rows_of(draw: st.DrawFn, cls: type[Message], list_fields: tuple[str, ...]) -> Message:
+    """A message whose string lists and arrays all have the same number of rows."""
+    n = draw(st.integers(0, 4))
+    kwargs: dict[str, object] = {}
+    for spec in field_specs(cls):
+        if spec.name in list_fields:
+            kwargs[spec.name] = draw(st.lists(text, min_size=n, max_size=n))
+        elif spec.kind == "array" and spec.array is not None and spec.array.shape[0] is None:
+            kwargs[spec.name] = draw(array_strategy(_spec(cls, spec.name), {0: n}))
+    return draw(auto(cls, **{k: st.just(v) for k, v in kwargs.items()}))
+
+
+@st.composite
 def gt_contacts(draw: st.DrawFn) -> m.GroundTruthContacts:
     n = draw(st.integers(0, 4))
     return m.GroundTruthContacts(
@@ -304,6 +317,10 @@ STRATEGIES: dict[type[Message], st.SearchStrategy] = {
     ),
     m.ExploreGoal: auto(m.ExploreGoal),
     m.NavigationResult: auto(m.NavigationResult),
+    m.Detections: rows_of(m.Detections, ("labels",)),
+    m.ObjectTracks: rows_of(m.ObjectTracks, ("labels",)),
+    m.GraspRequest: auto(m.GraspRequest, max_distance=nonneg),
+    m.HandleRequest: auto(m.HandleRequest),
 }
 
 # Messages that may ride inside ActionGoal.goal / ActionResult.result in the fuzz (no
