@@ -77,6 +77,7 @@ class BusMonitor:
         self.lock = threading.Lock()
         self.keys: dict[str, KeyTraffic] = {}
         self.frames: dict[str, object] = {}  # key -> latest RgbdImage
+        self.detections: dict[str, object] = {}  # camera -> perception's latest Detections
         self.alive: set[str] = set()
         self._sub = bus.session.declare_subscriber("qm/**", self._on_sample)  # type: ignore[attr-defined]
         self._live = bus.watch_liveliness(self._on_alive)  # type: ignore[attr-defined]
@@ -105,6 +106,8 @@ class BusMonitor:
             t.last_stamp = float(msg.stamp)
             if t.type_name == "RgbdImage":
                 self.frames[key] = msg
+            elif t.type_name == "Detections":
+                self.detections[msg.camera] = msg  # type: ignore[attr-defined]
 
     def undeclare(self) -> None:
         try:
@@ -149,6 +152,7 @@ class FrameWriter:
 
         with monitor.lock:
             frames = dict(monitor.frames)
+            detections = dict(monitor.detections)
         now = time.monotonic()
         for key, msg in frames.items():
             if now - self.last_saved.get(key, -1e9) < self.every_s:
@@ -159,8 +163,21 @@ class FrameWriter:
             rgb = np.asarray(msg.rgb)  # type: ignore[attr-defined]
             if rgb.size:
                 path = stem.with_name(stem.name + "_rgb.png")
-                cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+                bgr = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
+                cv2.imwrite(str(path), bgr)
                 self.written.append(path)
+                det = detections.get(msg.camera)  # type: ignore[attr-defined]
+                if det is not None and len(det.labels):  # type: ignore[attr-defined]
+                    # perception's newest boxes for this camera (from a frame < 0.1 s older
+                    # or newer, so they may sit a little off a moving object)
+                    for lab, sc, b in zip(det.labels, det.scores, det.boxes, strict=True):  # type: ignore[attr-defined]
+                        x0, y0, x1, y1 = (int(round(float(v))) for v in b)
+                        cv2.rectangle(bgr, (x0, y0), (x1, y1), (0, 255, 0), 1)
+                        cv2.putText(bgr, f"{lab} {sc:.2f}", (x0, max(8, y0 - 2)),
+                                    cv2.FONT_HERSHEY_SIMPLEX, 0.3, (0, 255, 0), 1)  # fmt: skip
+                    path = stem.with_name(stem.name + "_detections.png")
+                    cv2.imwrite(str(path), bgr)
+                    self.written.append(path)
             depth = np.asarray(msg.depth)  # type: ignore[attr-defined]
             if depth.size:
                 valid = depth > 0

@@ -33,6 +33,7 @@ __all__ = [
     "Detection",
     "Detector",
     "DetectorConfig",
+    "NetworkShape",
     "decode",
     "encode_input",
 ]
@@ -43,14 +44,19 @@ RGB_STD = np.array([0.25, 0.25, 0.25], np.float32)
 
 
 @dataclass(frozen=True)
-class DetectorConfig:
-    """The network's shape and decoding thresholds (``[detector]`` of
-    configs/perception.toml); the weights file records the shape it was trained with."""
+class NetworkShape:
+    """The network's widths (training chooses them; the weights file records them)."""
 
-    weights: str = "models/detector.pt"  # relative to the perception package, or absolute
     widths: tuple[int, int, int, int] = (16, 32, 64, 128)  # strides 2, 4, 8, 16
     neck: int = 32  # channels of the stride-8 and stride-4 pyramid levels
     head: int = 32
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """Which weights to run and how to decode (``[detector]`` of configs/perception.toml)."""
+
+    weights: str = "models/detector.pt"  # relative to the perception package, or absolute
     score_threshold: float = 0.3  # detections below are dropped
     max_detections: int = 30
     threads: int = 1  # torch intra-op threads at run time (the node's budget is one core)
@@ -86,9 +92,9 @@ class CenterNet(nn.Module):
     """Backbone + pyramid + heads. ``forward`` returns (heat logits [B,C,H/4,W/4],
     log-size [B,2,...], offset [B,2,...])."""
 
-    def __init__(self, n_classes: int, cfg: DetectorConfig | None = None) -> None:
+    def __init__(self, n_classes: int, cfg: NetworkShape | None = None) -> None:
         super().__init__()
-        cfg = cfg or DetectorConfig()
+        cfg = cfg or NetworkShape()
         w1, w2, w3, w4 = cfg.widths
         self.n_classes = n_classes
         self.stem = _cbr(4, w1, 2)  # /2
@@ -184,7 +190,8 @@ class Detector:
         if not path.exists():
             raise FileNotFoundError(f"detector weights not found: {path}")
         ck = load_checkpoint(path)
-        net_cfg = DetectorConfig(**{**ck.get("config", {}), "weights": str(path)})
+        net_cfg = NetworkShape(**{k: tuple(v) if isinstance(v, list) else v
+                                   for k, v in ck.get("config", {}).items()})  # fmt: skip
         self.classes: tuple[str, ...] = tuple(ck["classes"])
         if cfg.classes and tuple(cfg.classes) != self.classes:
             raise ValueError(f"weights are for classes {self.classes}, config asks {cfg.classes}")

@@ -33,7 +33,7 @@ from quadmanip.services.perception.detector import (
     PACKAGE_DIR,
     STRIDE,
     CenterNet,
-    DetectorConfig,
+    NetworkShape,
     encode_input,
 )
 
@@ -278,7 +278,7 @@ def train(
     """Train (or resume) for ``iters`` iterations in all; returns the final state's card."""
     torch.set_num_threads(threads)
     torch.manual_seed(seed)
-    cfg = DetectorConfig()
+    cfg = NetworkShape()
     net = CenterNet(len(data.classes), cfg)
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
     state: dict[str, Any] = {"iteration": 0, "train_minutes": 0.0, "history": []}
@@ -316,7 +316,7 @@ def train(
         blob = {
             "model": net.state_dict(),
             "classes": list(data.classes),
-            "config": {k: v for k, v in asdict(cfg).items() if k in ("widths", "neck", "head")},
+            "config": asdict(cfg),
             **state,
             "card": card,
         }

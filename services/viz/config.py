@@ -35,6 +35,14 @@ class VizConfig:
     depth: bool = True
     jpeg_quality: int = 0  # 1..100: JPEG-compress RGB (smaller files); 0 = raw
     scan_every: int = 1  # log every Nth LiDAR scan
+    # perception/detections: boxes on the camera images + located centroids. A detection
+    # whose camera frame was logged (image_every) is always kept, so its boxes sit on their
+    # own picture; the others at most detections_rate per camera (they overlay the last
+    # logged frame, up to image_every - 1 frames older).
+    detections: bool = True
+    detections_rate: float = 5.0
+    objects: bool = True  # perception/objects: the object memory as 3-D boxes
+    objects_rate: float = 4.0  # published at 2 Hz and on every change: caps the bursts
 
     skeleton: bool = True  # draw the robot (stick figure from joint angles) at joints_rate
     force_scale: float = 0.002  # m of arrow per N of foot force
@@ -59,6 +67,8 @@ class VizConfig:
             "debug_rate",
             "gt_rate",
             "command_rate",
+            "detections_rate",
+            "objects_rate",
         ):
             if getattr(self, name) < 0:
                 raise ValueError(f"viz.{name} must be >= 0")

@@ -11,6 +11,11 @@ that fails to convert is counted (``errors``) and logged, throttled; the bridge 
 running either way. Counters are reported every ``stats_period`` seconds, in the service
 log and in the recording (``log/viz``).
 
+Perception: ``perception/detections`` become boxes on the camera image they were computed
+on (kept whenever that frame's image was logged, else at most ``detections_rate`` per
+camera) and ``perception/objects`` (the object memory) 3-D boxes in the odom frame, at most
+``objects_rate``.
+
 Ground truth (``sim/gt/**``) is shown under its own ``world/gt`` tree: visualisation is one
 of the three readers allowed (with the judge and the tests).
 """
@@ -36,6 +41,8 @@ from quadmanip.services.viz.sinks import Recordings, open_recordings
 from quadmanip.services.viz.skeleton import RobotSkeleton
 
 __all__ = ["StreamStats", "VizNode", "lidar_mount_from_description", "main"]
+
+_KEPT_FRAMES = 8  # logged frame stamps remembered per camera (detections arrive after)
 
 
 @dataclasses.dataclass
@@ -88,6 +95,8 @@ class VizNode(Service):
         Input("sim/gt/objects", latest_only=True, doc="GROUND TRUTH objects"),
         Input("sim/gt/contacts", latest_only=True, doc="GT contacts"),
         Input("sim/gt/judge", doc="judge verdicts (text log)"),
+        Input("perception/detections", latest_only=True, doc="boxes on the camera images"),
+        Input("perception/objects", latest_only=True, doc="object memory (3-D boxes)"),
     ) + tuple(Input(f"{s}/heartbeat", doc="state changes (text log)") for s in keys.SERVICES)
     outputs = ()
     loop_period = 0.25  # step(): periodic counter report
@@ -138,6 +147,11 @@ class VizNode(Service):
             "sim/camera/gripper": rl.EveryNth(cfg.image_every),
         }
         self._scan = rl.EveryNth(cfg.scan_every)
+        # Camera → stamps of its last logged frames (a tuple, replaced whole by the camera's
+        # thread, read by the detections thread: no lock needed).
+        self._logged_frames: dict[str, tuple[float, ...]] = {}
+        self._detections: dict[str, rl.RateLimiter] = {}  # per camera
+        self._objects = lim(cfg.objects_rate)
         self._heartbeats = rl.HeartbeatTracker()
 
         self._wire("lowstate", "sim/lowstate", self._on_lowstate)
@@ -155,6 +169,11 @@ class VizNode(Service):
         self._wire("gt_objects", "sim/gt/objects", self._on_gt_objects)
         self._wire("gt_contacts", "sim/gt/contacts", self._on_gt_contacts)
         self._wire("judge", "sim/gt/judge", self._on_judge)
+        if cfg.detections:
+            self._wire("detections", "perception/detections", self._on_detections)
+        if cfg.objects:
+            # Its stamp is the newest last_seen (0 for an empty memory), not a clock.
+            self._wire("objects", "perception/objects", self._on_objects, robot_time=False)
         for s in keys.SERVICES:
             self._wire("heartbeat", f"{s}/heartbeat", self._on_heartbeat, robot_time=False)
         self.log.info("viz recording", sinks=",".join(where))
@@ -233,9 +252,32 @@ class VizNode(Service):
             if not every.allow():
                 return False
             rl.log_rgbd(self.rec, msg, rgb=cfg.rgb, depth=cfg.depth, jpeg_quality=cfg.jpeg_quality)
+            kept = self._logged_frames.get(msg.camera, ())[-(_KEPT_FRAMES - 1) :]
+            self._logged_frames[msg.camera] = (*kept, float(msg.stamp))
             return True
 
         return handle
+
+    def _on_detections(self, msg: m.Detections) -> bool:
+        t = rl.detection_time(msg)
+        limiter = self._detections.get(msg.camera)
+        if limiter is None:
+            limiter = self._detections[msg.camera] = rl.RateLimiter(self.config.detections_rate)
+        allowed = limiter.allow(t)  # first: it records the time when it lets one through
+        on_logged_frame = any(abs(t - s) < 1e-6 for s in self._logged_frames.get(msg.camera, ()))
+        if not (allowed or on_logged_frame):
+            return False
+        rl.log_detections(self.rec, msg)
+        return True
+
+    def _on_objects(self, msg: m.ObjectTracks) -> bool:
+        # At the bridge's robot clock (the memory as it is now), never before the newest
+        # sighting: a track forgotten later must vanish later, not at an older stamp.
+        t = max(float(msg.stamp), self._last_stamp)
+        if not self._objects.allow(t):
+            return False
+        rl.log_object_tracks(self.rec, msg, stamp=t)
+        return True
 
     def _on_scan(self, msg: m.LaserScan) -> bool:
         if not self._scan.allow():

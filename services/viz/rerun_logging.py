@@ -14,6 +14,11 @@ same layout (:func:`blueprint`)::
     world/odom/base/foot_forces   MPC ground reaction forces as arrows at the feet
     world/odom/base/<camera>      base_T_camera + Pinhole(K); ./rgb, ./depth
     world/odom/base/lidar/scan    2D LiDAR returns (lidar frame; mount from the description)
+    world/odom/base/<camera>/detections
+                                  perception's boxes ("label score") on that camera's image
+    world/odom/perception/objects the object memory: 3-D boxes "label #id" (odom frame)
+    world/odom/perception/detections/<camera>
+                                  located detections' centroids (odom frame)
     world/odom/trajectory         odometry trail; world/odom/mpc_prediction the MPC horizon
     world/gt/...                  GROUND TRUTH (sim only): base, base_trajectory, objects,
                                   contacts — its own tree, never mixed with estimates
@@ -29,6 +34,7 @@ from __future__ import annotations
 
 import math
 import re
+import zlib
 from collections import deque
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, Protocol
@@ -48,6 +54,7 @@ __all__ = [
     "GT",
     "LOG",
     "ODOM",
+    "PERCEPTION",
     "PLOTS",
     "WORLD",
     "TIMELINE",
@@ -58,7 +65,10 @@ __all__ = [
     "VelocityFromPoses",
     "blueprint",
     "camera_entity",
+    "detection_time",
+    "label_color",
     "log_arm_trajectory",
+    "log_detections",
     "log_foot_forces",
     "log_gt_base",
     "log_gt_contacts",
@@ -70,6 +80,7 @@ __all__ = [
     "log_locomotion_debug",
     "log_lowstate",
     "log_odom_alignment",
+    "log_object_tracks",
     "log_odometry",
     "log_rgbd",
     "log_robot_body",
@@ -93,6 +104,7 @@ WORLD = "world"
 ODOM = "world/odom"
 BASE = "world/odom/base"
 GT = "world/gt"
+PERCEPTION = "world/odom/perception"  # perception's estimates live in odom, like its centroids
 PLOTS = "plots"
 LOG = "log"
 
@@ -105,6 +117,23 @@ _GT_COLOR = np.array([255, 200, 0], dtype=np.uint8)  # ground truth: always ambe
 _ODOM_COLOR = np.array([40, 140, 255], dtype=np.uint8)
 _MPC_COLOR = np.array([200, 60, 220], dtype=np.uint8)
 _ENTITY_RE = re.compile(r"[^A-Za-z0-9_\-]")
+# Object classes: one colour per label (stable across runs and between detections and
+# tracks, so a "cup" box on the image and its 3-D track match); no amber (ground truth).
+_LABEL_PALETTE = np.array(
+    [
+        [31, 119, 180],
+        [44, 160, 44],
+        [214, 39, 40],
+        [148, 103, 189],
+        [23, 190, 207],
+        [227, 119, 194],
+        [140, 86, 75],
+        [188, 189, 34],
+        [255, 127, 14],
+        [0, 128, 128],
+    ],
+    dtype=np.uint8,
+)
 
 
 # --------------------------------------------------------------------------- helpers
@@ -451,6 +480,98 @@ def log_scan(rec: RecordingLike, msg: m.LaserScan) -> int:
     set_time(rec, msg.stamp)
     rec.log(f"{BASE}/lidar/scan", rr.Points3D(pts, radii=0.015, colors=[[255, 80, 80]]))
     return len(pts)
+
+
+# --------------------------------------------------------------------------- perception
+
+
+def label_color(label: str) -> np.ndarray:
+    """RGB (uint8) of an object class: a fixed palette entry picked by a CRC of the label,
+    so it is the same in every run, on the image boxes and on the 3-D tracks."""
+    return _LABEL_PALETTE[zlib.crc32(label.encode()) % len(_LABEL_PALETTE)]
+
+
+def _label_colors(labels: Sequence[str]) -> np.ndarray:
+    cache = {lab: label_color(lab) for lab in set(labels)}
+    return np.array([cache[lab] for lab in labels], dtype=np.uint8).reshape(-1, 3)
+
+
+def detection_time(msg: m.Detections) -> float:
+    """Robot time of the camera frame the detections were computed on (``frame_stamp``; the
+    message ``stamp`` if a publisher left it 0): the boxes land on that frame's image."""
+    return float(msg.frame_stamp) if msg.frame_stamp > 0.0 else float(msg.stamp)
+
+
+def log_detections(rec: RecordingLike, msg: m.Detections) -> int:
+    """One camera frame's detections: Boxes2D (pixels, "label score") under the camera's
+    entity, so they overlay its image in the 2-D view (and its frustum in 3-D), and the
+    located ones' centroids as Points3D in the odom frame, both at the frame's time.
+
+    An empty message is logged too: it clears the previous frame's boxes. Returns the
+    number of boxes.
+    """
+    n = len(msg.labels)
+    text = [f"{lab} {float(s):.2f}" for lab, s in zip(msg.labels, msg.scores, strict=True)]
+    colors = _label_colors(msg.labels)
+    set_time(rec, detection_time(msg))
+    rec.log(
+        f"{camera_entity(msg.camera)}/detections",
+        rr.Boxes2D(
+            array=np.asarray(msg.boxes, dtype=np.float32).reshape(n, 4),
+            array_format=rr.Box2DFormat.XYXY,
+            labels=text,
+            colors=colors,
+            show_labels=True,
+        ),
+    )
+    ok = np.asarray(msg.located, dtype=bool)
+    name = _ENTITY_RE.sub("_", msg.camera.strip()) or "camera"
+    rec.log(
+        f"{PERCEPTION}/detections/{name}",  # per camera: one camera's frame leaves the other's
+        rr.Points3D(
+            np.asarray(msg.centroids, dtype=np.float32).reshape(n, 3)[ok],
+            radii=0.025,
+            colors=colors[ok],
+            labels=[t for t, keep in zip(text, ok, strict=True) if keep],
+            show_labels=False,  # the track boxes carry the text in 3-D; these show on hover
+        ),
+    )
+    return n
+
+
+_TENTATIVE_ALPHA = 110  # faded: a track not yet seen often enough to act on
+_MIN_HALF_SIZE = 0.01  # m: a track with no extent yet still shows as a small box
+
+
+def log_object_tracks(rec: RecordingLike, msg: m.ObjectTracks, stamp: float | None = None) -> int:
+    """Perception's object memory as Boxes3D in the odom frame (``world/odom/perception/
+    objects``): at each centroid, the extent as the box size, labelled "label #id", in the
+    class colour, solid when confirmed and faded (lighter, translucent, thinner) while
+    tentative. Logged at ``stamp`` (default: the message's). Returns the track count.
+
+    The whole memory is replaced each time: a forgotten track disappears.
+    """
+    n = len(msg.labels)
+    confirmed = np.asarray(msg.confirmed, dtype=bool)
+    rgb = _label_colors(msg.labels).astype(np.float32)
+    faded = 0.5 * rgb + 0.5 * 200.0  # half-way to light grey: reads as faded even when opaque
+    rgb = np.where(confirmed[:, None], rgb, faded)
+    alpha = np.where(confirmed, 255, _TENTATIVE_ALPHA)[:, None]
+    colors = np.hstack([rgb, alpha]).astype(np.uint8).reshape(n, 4)
+    half = np.maximum(np.asarray(msg.extents, dtype=np.float32).reshape(n, 3) / 2, _MIN_HALF_SIZE)
+    set_time(rec, msg.stamp if stamp is None else stamp)
+    rec.log(
+        f"{PERCEPTION}/objects",
+        rr.Boxes3D(
+            centers=np.asarray(msg.centroids, dtype=np.float32).reshape(n, 3),
+            half_sizes=half,
+            colors=colors,
+            radii=np.where(confirmed, 0.01, 0.004).astype(np.float32),
+            labels=[f"{lab} #{int(i)}" for lab, i in zip(msg.labels, msg.ids, strict=True)],
+            show_labels=True,
+        ),
+    )
+    return n
 
 
 # --------------------------------------------------------------------------- ground truth

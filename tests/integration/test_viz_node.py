@@ -3,7 +3,8 @@
 The test publishes (from its own bus) the streams the bridge subscribes to, plus one
 undecodable payload, waits until the node's counters show every stream, stops it with
 SIGTERM and reads the recording back with Rerun's reader: each stream's entity is there,
-ground truth under ``world/gt``, and the garbage was counted, not fatal.
+ground truth under ``world/gt``, perception's boxes under the camera and the object
+memory in the odom tree, and the garbage was counted, not fatal.
 """
 
 from __future__ import annotations
@@ -36,6 +37,8 @@ STREAMS = (
     "gt_contacts",
     "judge",
     "heartbeat",
+    "detections",
+    "objects",
 )
 
 
@@ -116,6 +119,29 @@ def _messages(t: float) -> dict[str, m.Message]:
         ),
         "sim/gripper_command": m.GripperCommand(stamp=t, gap=0.05, max_force=10.0),
         "sim/heartbeat": m.Heartbeat(stamp=t, service="sim", seq=int(t * 10), state="running"),
+        "perception/detections": m.Detections(
+            stamp=t,
+            camera="front_camera",
+            frame_stamp=t,  # the frame published above: its boxes overlay that image
+            labels=["cup", "banana"],
+            scores=np.array([0.9, 0.5], np.float32),
+            boxes=np.array([[2, 3, 12, 15], [20, 4, 30, 20]], np.float32),
+            centroids=[[1.0, 2.0, 0.75], [0.0, 0.0, 0.0]],
+            extents=np.array([[0.1, 0.1, 0.12], [0, 0, 0]], np.float32),
+            located=np.array([1, 0], np.uint8),
+        ),
+        "perception/objects": m.ObjectTracks(
+            stamp=t,
+            ids=np.array([0, 1], np.int32),
+            labels=["cup", "banana"],
+            centroids=[[1, 2, 0.75], [3, -1, 0.02]],
+            extents=np.array([[0.1, 0.1, 0.12], [0.2, 0.05, 0.04]], np.float32),
+            confidences=np.array([0.9, 0.3], np.float32),
+            observations=np.array([8, 1], np.int32),
+            last_seen=[t, t],
+            confirmed=np.array([1, 0], np.uint8),
+            map_centroids=[[1, 2, 0.75], [3, -1, 0.02]],
+        ),
     }
 
 
@@ -185,6 +211,9 @@ def test_viz_records_every_stream(zenoh_router, spawn, bus_factory, tmp_path: Pa
         "/world/gt/base_trajectory",
         "/world/gt/objects",
         "/world/gt/contacts",
+        "/world/odom/base/front_camera/detections",
+        "/world/odom/perception/detections/front_camera",
+        "/world/odom/perception/objects",
         "/log/judge",
         "/log/heartbeat/sim",
         "/log/viz",

@@ -7,6 +7,7 @@ message: shapes, values, frames and the robot-time timeline.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import defaultdict
 from pathlib import Path
@@ -277,6 +278,116 @@ def test_scan_logged_under_the_lidar_mount(recording: Recording) -> None:
     np.testing.assert_allclose(mount["Transform3D:translation"][0], [0.185, 0, 0.075], atol=1e-6)
     pts = np.array(rows["/world/odom/base/lidar/scan"][0]["Points3D:positions"])
     np.testing.assert_allclose(pts, [[1, 0, 0], [0, 2, 0], [0, -3, 0]], atol=1e-5)
+
+
+# --------------------------------------------------------------------------- perception
+
+
+def _rgba(packed: int) -> tuple[int, int, int, int]:
+    """Rerun's colour column (one uint32 0xRRGGBBAA) → (r, g, b, a)."""
+    return tuple(int(b) for b in packed.to_bytes(4, "big"))  # type: ignore[return-value]
+
+
+def _detections(camera: str = "front_camera", stamp: float = 1.5) -> m.Detections:
+    return m.example(  # type: ignore[return-value]
+        m.Detections,
+        stamp=stamp,
+        camera=camera,
+        frame_stamp=stamp,
+        labels=["cup", "banana", "cup"],
+        scores=np.array([0.91, 0.4, 0.756], np.float32),
+        boxes=np.array([[10, 20, 50, 80], [0, 0, 8, 6], [100, 40, 120, 70]], np.float32),
+        centroids=[[1.0, 2.0, 0.75], [0.0, 0.0, 0.0], [1.5, -0.5, 0.8]],
+        extents=np.array([[0.08, 0.08, 0.1], [0, 0, 0], [0.07, 0.07, 0.09]], np.float32),
+        located=np.array([1, 0, 1], np.uint8),  # the banana had no usable depth
+    )
+
+
+def test_detections_boxes_on_the_camera_image_and_located_points(recording: Recording) -> None:
+    msg = _detections()
+    late = dataclasses.replace(msg, stamp=1.9, frame_stamp=1.7)  # published after the frame
+    assert rl.log_detections(recording.rec, msg) == 3
+    rl.log_detections(recording.rec, late)
+    rl.log_detections(recording.rec, m.Detections(stamp=2.0, camera="front_camera"))
+    rows = recording.read()
+
+    # Under the camera entity (its Pinhole): pixels on the image, at the frame's time.
+    boxes = rows["/world/odom/base/front_camera/detections"]
+    assert [r[rl.TIMELINE] for r in boxes] == pytest.approx([1.5, 1.7, 2.0])
+    b = boxes[0]
+    xyxy = np.hstack(
+        [
+            np.array(b["Boxes2D:centers"]) - b["Boxes2D:half_sizes"],
+            np.array(b["Boxes2D:centers"]) + b["Boxes2D:half_sizes"],
+        ]
+    )
+    np.testing.assert_allclose(xyxy, msg.boxes, atol=1e-5)
+    assert b["Boxes2D:labels"] == ["cup 0.91", "banana 0.40", "cup 0.76"]
+    assert b["Boxes2D:show_labels"] == [True]
+    colors = [_rgba(c) for c in b["Boxes2D:colors"]]
+    assert colors[0] == colors[2] != colors[1]  # one colour per class
+    assert colors[0][:3] == tuple(rl.label_color("cup")) and colors[0][3] == 255
+    assert boxes[2]["Boxes2D:centers"] == []  # a frame with nothing clears the boxes
+
+    # Only located detections become points, in the odom frame, per camera.
+    pts = rows["/world/odom/perception/detections/front_camera"]
+    assert [r[rl.TIMELINE] for r in pts] == pytest.approx([1.5, 1.7, 2.0])
+    np.testing.assert_allclose(pts[0]["Points3D:positions"], msg.centroids[[0, 2]], atol=1e-6)
+    assert pts[0]["Points3D:labels"] == ["cup 0.91", "cup 0.76"]
+    assert pts[2]["Points3D:positions"] == []
+
+
+def test_detections_of_each_camera_keep_their_own_entities(recording: Recording) -> None:
+    rl.log_detections(recording.rec, _detections("front_camera", 1.0))
+    rl.log_detections(recording.rec, _detections("gripper_camera", 1.1))
+    rows = recording.read()
+    assert rows["/world/odom/base/gripper_camera/detections"][0][rl.TIMELINE] == pytest.approx(1.1)
+    assert "/world/odom/perception/detections/gripper_camera" in rows
+    assert len(rows["/world/odom/base/front_camera/detections"]) == 1
+    # An old publisher without frame_stamp: the message stamp places the boxes.
+    legacy = dataclasses.replace(_detections(), frame_stamp=0.0, stamp=3.0)
+    assert rl.detection_time(legacy) == 3.0
+
+
+def test_object_tracks_as_labelled_boxes_confirmed_solid_tentative_faded(
+    recording: Recording,
+) -> None:
+    tracks = m.example(
+        m.ObjectTracks,
+        stamp=4.0,
+        ids=np.array([3, 12], np.int32),
+        labels=["cup", "cup"],
+        centroids=[[1.0, 2.0, 0.75], [-0.5, 0.3, 0.02]],
+        extents=np.array([[0.08, 0.1, 0.12], [0.0, 0.0, 0.0]], np.float32),
+        confidences=np.array([0.9, 0.2], np.float32),
+        observations=np.array([14, 1], np.int32),
+        last_seen=[4.0, 3.2],
+        confirmed=np.array([1, 0], np.uint8),
+        map_centroids=[[1.0, 2.0, 0.75], [-0.5, 0.3, 0.02]],
+    )
+    assert rl.log_object_tracks(recording.rec, tracks) == 2
+    rl.log_object_tracks(recording.rec, m.ObjectTracks(stamp=0.0), stamp=6.0)  # memory emptied
+    rows = recording.read()
+    objs = rows["/world/odom/perception/objects"]
+    assert [r[rl.TIMELINE] for r in objs] == pytest.approx([4.0, 6.0])
+    o = objs[0]
+    np.testing.assert_allclose(o["Boxes3D:centers"], tracks.centroids, atol=1e-6)
+    # Extents are sizes: half of them, and a small box for a track without one yet.
+    np.testing.assert_allclose(
+        o["Boxes3D:half_sizes"], [[0.04, 0.05, 0.06], [0.01, 0.01, 0.01]], atol=1e-6
+    )
+    assert o["Boxes3D:labels"] == ["cup #3", "cup #12"]
+    solid, faded = (_rgba(c) for c in o["Boxes3D:colors"])
+    assert solid == (*rl.label_color("cup"), 255)
+    assert faded[3] < 255 and faded[:3] != solid[:3]  # same class, tentative: faded
+    assert o["Boxes3D:radii"][0] > o["Boxes3D:radii"][1]
+    assert objs[1]["Boxes3D:centers"] == []  # forgotten tracks vanish
+
+
+def test_label_colors_are_stable_and_not_ground_truth_amber() -> None:
+    assert tuple(rl.label_color("cup")) == tuple(rl.label_color("cup"))
+    colors = {tuple(rl.label_color(f"class{i}")) for i in range(50)}
+    assert len(colors) > 5 and (255, 200, 0) not in colors
 
 
 # --------------------------------------------------------------------------- ground truth

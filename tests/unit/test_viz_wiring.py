@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
 import pytest
 import rerun as rr
 from quadmanip.common import messages as m
@@ -96,6 +97,18 @@ def _lowstate(t: float) -> m.LowState:
     return m.LowState(stamp=t, tick=round(t / 0.002), joints=js, imu=imu)
 
 
+def _image(camera: str = "front_camera", stamp: float = 0.1) -> m.RgbdImage:
+    return m.RgbdImage(
+        stamp=stamp,
+        camera=camera,
+        rgb=np.zeros((4, 6, 3), np.uint8),
+        depth=np.ones((4, 6), np.float32),
+        K=[[5, 0, 3], [0, 5, 2], [0, 0, 1]],
+        position=[0.2, 0, 0.03],
+        orientation=[0.5, -0.5, 0.5, -0.5],
+    )
+
+
 def test_config_file_loads_and_rejects_nonsense() -> None:
     cfg = load_config(VizConfig, "viz")
     assert cfg.output.endswith(".rrd") and cfg.joints_rate == 50.0 and cfg.image_every >= 1
@@ -107,6 +120,8 @@ def test_config_file_loads_and_rejects_nonsense() -> None:
         {"joints_rate": -1.0},
         {"output": "", "connect_url": "", "serve_port": 0},
         {"lidar_position": [1.0]},
+        {"detections_rate": -1.0},
+        {"objects_rate": -0.5},
     ):
         with pytest.raises((ConfigError, ValueError)):
             load_config(VizConfig, "viz", bad)
@@ -139,15 +154,7 @@ def test_node_throttles_counts_and_survives_bad_messages(node) -> None:
 
     for k in range(500):  # 1 s of LowState at 500 Hz → 50 logged at 50 Hz
         bus.deliver("sim/lowstate", _lowstate(0.002 * k))
-    img = m.RgbdImage(
-        stamp=0.1,
-        camera="front_camera",
-        rgb=np.zeros((4, 6, 3), np.uint8),
-        depth=np.ones((4, 6), np.float32),
-        K=[[5, 0, 3], [0, 5, 2], [0, 0, 1]],
-        position=[0.2, 0, 0.03],
-        orientation=[0.5, -0.5, 0.5, -0.5],
-    )
+    img = _image()
     for _ in range(7):  # image_every = 3 → frames 0, 3, 6
         bus.deliver("sim/camera/front", img)
     for k in range(30):  # odometry and ground truth at 10 Hz for 3 s: walking +x at 0.5 m/s
@@ -249,3 +256,111 @@ def test_unreachable_viewer_does_not_hold_the_file_or_the_stop(tmp_path: Path) -
     assert time.monotonic() - t0 < 1.5
     assert closed["file"] and not closed["live"]
     assert "/plots/x" in _entities(out)
+
+
+def _times(path: Path, entity: str) -> list[float]:
+    """Robot times (s) of an entity's non-static rows in the recording, sorted."""
+    out: list[float] = []
+    for chunk in RrdReader(path).store().stream().to_chunks():
+        if chunk.entity_path == entity and not chunk.is_static:
+            col = chunk.to_record_batch().column("robot_time").cast(pa.int64())
+            out += [v / 1e9 for v in col.to_pylist()]
+    return sorted(out)
+
+
+def _detections(camera: str, t: float) -> m.Detections:
+    return m.example(  # type: ignore[return-value]
+        m.Detections,
+        stamp=t,
+        camera=camera,
+        frame_stamp=t,
+        labels=["cup"],
+        scores=np.array([0.8], np.float32),
+        boxes=np.array([[1, 1, 4, 3]], np.float32),
+        centroids=[[1.0, 0.5, 0.7]],
+        extents=np.array([[0.1, 0.1, 0.1]], np.float32),
+        located=np.array([1], np.uint8),
+    )
+
+
+def _tracks(stamp: float, n: int) -> m.ObjectTracks:
+    return m.ObjectTracks(
+        stamp=stamp,
+        ids=np.arange(n, dtype=np.int32),
+        labels=["cup"] * n,
+        centroids=np.ones((n, 3)),
+        extents=np.full((n, 3), 0.1, np.float32),
+        confidences=np.full(n, 0.9, np.float32),
+        observations=np.full(n, 5, np.int32),
+        last_seen=np.full(n, stamp),
+        confirmed=np.ones(n, np.uint8),
+        map_centroids=np.ones((n, 3)),
+    )
+
+
+def test_perception_boxes_follow_the_logged_frames_and_tracks_the_robot_clock(
+    tmp_path: Path,
+) -> None:
+    out = tmp_path / "p.rrd"
+    cfg = dataclasses.replace(
+        load_config(VizConfig, "viz"),
+        output=str(out),
+        image_every=3,
+        detections_rate=2.0,
+        objects_rate=4.0,
+        skeleton=False,
+    )
+    bus = FakeBus()
+    n = VizNode(bus, cfg)  # type: ignore[arg-type]
+    n.setup()
+    # Both are sensor-like: only the newest matters if the recording falls behind.
+    assert bus.latest_only["perception/detections"] and bus.latest_only["perception/objects"]
+
+    stamps = [round(0.1 * k, 3) for k in range(7)]
+    for t in stamps:  # image_every = 3: frames 0.0, 0.3 and 0.6 are logged
+        bus.deliver("sim/camera/front", dataclasses.replace(_image(), stamp=t))
+    for t in stamps:  # the detector saw every frame; its results arrive after the images
+        bus.deliver("perception/detections", _detections("front_camera", t))
+    # A camera whose images are not logged at all: its boxes at detections_rate only.
+    for t in stamps:
+        bus.deliver("perception/detections", _detections("gripper_camera", t))
+
+    bus.deliver("sim/lowstate", _lowstate(2.0))  # the bridge's robot clock: 2.0 s
+    bus.deliver("perception/objects", _tracks(1.2, 3))  # stamp = newest sighting, older
+    bus.deliver("sim/lowstate", _lowstate(2.5))
+    bus.deliver("perception/objects", _tracks(0.0, 0))  # memory emptied (stamp 0)
+    bus.deliver("perception/objects", _tracks(0.0, 0))  # same clock: over objects_rate
+
+    st = n.stats()
+    # front: on a logged frame always (0.0, 0.3, 0.6), else at 2 Hz (0.5); gripper: 2 Hz.
+    assert (st["detections"].logged, st["detections"].decimated) == (4 + 2, 3 + 5)
+    assert (st["objects"].logged, st["objects"].decimated) == (2, 1)
+    n.teardown()
+
+    assert _times(out, "/world/odom/base/front_camera/detections") == pytest.approx(
+        [0.0, 0.3, 0.5, 0.6]
+    )
+    assert _times(out, "/world/odom/base/front_camera/rgb") == pytest.approx([0.0, 0.3, 0.6])
+    assert _times(out, "/world/odom/base/gripper_camera/detections") == pytest.approx([0.0, 0.5])
+    assert _times(out, "/world/odom/perception/detections/front_camera") == pytest.approx(
+        [0.0, 0.3, 0.5, 0.6]
+    )
+    # The memory lands at the robot clock, so the emptied one comes after the full one.
+    assert _times(out, "/world/odom/perception/objects") == pytest.approx([2.0, 2.5])
+
+
+def test_perception_streams_can_be_switched_off(tmp_path: Path) -> None:
+    cfg = dataclasses.replace(
+        load_config(VizConfig, "viz"),
+        output=str(tmp_path / "off.rrd"),
+        detections=False,
+        objects=False,
+        skeleton=False,
+    )
+    bus = FakeBus()
+    n = VizNode(bus, cfg)  # type: ignore[arg-type]
+    n.setup()
+    assert "perception/detections" not in bus.callbacks
+    assert "perception/objects" not in bus.callbacks
+    assert "sim/camera/front" in bus.callbacks
+    n.teardown()

@@ -1,0 +1,443 @@
+"""What the robot has seen where: object tracks in the odom frame (paper Section 4).
+
+The detector reports, per camera frame, objects as (class, score, centroid, extent) in the
+odom frame. :class:`ObjectMemory` fuses them over time and cameras into tracks:
+
+- Association: per class, observations are matched one-to-one to tracks by distance
+  (Hungarian assignment), within a gate that grows with the object's size; unmatched
+  observations start new tracks. Centroid and extent are running means whose newest-sample
+  weight never falls below ``smoothing`` (so a nudged object is followed).
+- Confirmation: a track is tentative until ``confirm_hits`` observations; a spurious
+  single detection therefore never reaches ``tracks(confirmed_only=True)``, and one not seen
+  again within ``tentative_ttl`` is forgotten.
+- Negative evidence: a track that this frame's camera should have seen (in front of it,
+  inside the image, within the detector's range, and not hidden: the depth at its pixel is
+  not much closer than the track) but that was not detected, misses; its confidence decays
+  and after ``max_misses`` consecutive misses it is removed. A track out of view, or hidden
+  behind something, keeps its state: the robot simply did not look. No depth return at
+  the track's pixel is no evidence either way (not a miss); a view without a depth image
+  is judged on geometry alone.
+- Two tracks of one class that drift within each other's gate (two cameras' slightly
+  different estimates) are merged, unless both were detected in the same frame.
+
+``confidence = mean score x (1 - exp(-observations / evidence_scale)) x miss_decay^misses``.
+
+Call :meth:`ObjectMemory.update` for every processed frame, also when nothing was detected
+(that is what removes objects that are gone). Not thread-safe; the node owns one instance.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from quadmanip.common.rotations import quat_to_mat
+from scipy.optimize import linear_sum_assignment
+
+__all__ = ["CameraView", "MemoryConfig", "ObjectMemory", "Observation", "Track"]
+
+
+@dataclass(frozen=True)
+class MemoryConfig:
+    """Parameters of :class:`ObjectMemory` (``[memory]`` of configs/perception.toml).
+
+    Lengths in metres, times in seconds (robot time, the stamps given to ``update``).
+    """
+
+    # Association gate: gate_scale x half the diagonal of the larger extent (track or
+    # observation), clipped to [min_gate, max_gate].
+    gate_scale: float = 1.0
+    min_gate: float = 0.08
+    max_gate: float = 0.40
+    # Detections scoring below this are ignored.
+    min_score: float = 0.0
+    # Observations before a track is confirmed.
+    confirm_hits: int = 3
+    # Consecutive in-view misses that remove a confirmed / a tentative track.
+    max_misses: int = 3
+    tentative_max_misses: int = 1
+    # A tentative track not observed for this long is dropped.
+    tentative_ttl: float = 30.0
+    # Lowest weight of a new sample in the centroid/extent running mean (1/n before).
+    smoothing: float = 0.2
+    # The score is a running mean over about this many detections.
+    score_window: int = 10
+    # Evidence term of the confidence, 1 - exp(-observations / evidence_scale).
+    evidence_scale: float = 2.0
+    # Confidence factor per consecutive miss.
+    miss_decay: float = 0.6
+    # Distance from the camera (m) at which the detector finds objects; a CameraView may
+    # override it per camera.
+    min_range: float = 0.15
+    max_range: float = 3.0
+    # The centroid must project at least this many pixels inside the image border.
+    image_margin: float = 8.0
+    # Hidden when the depth at the track's pixel is closer than the centroid by more than
+    # occlusion_tolerance + half the track's largest size.
+    occlusion_tolerance: float = 0.05
+    # Half-size (pixels of the given depth image) of the window sampled at the pixel: the
+    # furthest valid depth in it counts, so a thin occluder edge does not hide the track.
+    depth_window: int = 1
+
+    def __post_init__(self) -> None:
+        for name in (
+            "gate_scale",
+            "min_gate",
+            "max_gate",
+            "tentative_ttl",
+            "evidence_scale",
+            "max_range",
+        ):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0.0):
+                raise ValueError(f"MemoryConfig.{name} must be finite and > 0, got {v}")
+        if self.min_gate > self.max_gate:
+            raise ValueError("MemoryConfig: min_gate must not exceed max_gate")
+        if not 0.0 <= self.min_range < self.max_range:
+            raise ValueError("MemoryConfig: need 0 <= min_range < max_range")
+        if self.confirm_hits < 1 or self.max_misses < 1 or self.tentative_max_misses < 1:
+            raise ValueError("MemoryConfig: confirm_hits, max_misses, tentative_max_misses >= 1")
+        if not 0.0 < self.smoothing <= 1.0 or not 0.0 < self.miss_decay <= 1.0:
+            raise ValueError("MemoryConfig: smoothing and miss_decay must be in (0, 1]")
+        if self.score_window < 1 or self.depth_window < 0:
+            raise ValueError("MemoryConfig: score_window >= 1, depth_window >= 0")
+        if self.image_margin < 0.0 or self.occlusion_tolerance < 0.0 or self.min_score < 0.0:
+            raise ValueError("MemoryConfig: image_margin, occlusion_tolerance, min_score >= 0")
+
+
+@dataclass(frozen=True)
+class Observation:
+    """One detection: ``centroid`` (odom, m) and axis-aligned ``extent`` (odom, m, size
+    along x, y, z), detector ``score`` in [0, 1], the ``camera`` that saw it."""
+
+    class_name: str
+    score: float
+    centroid: np.ndarray
+    extent: np.ndarray
+    camera: str = ""
+
+
+ObservationLike = Observation | tuple[str, float, Sequence[float], Sequence[float], str]
+
+
+@dataclass(frozen=True)
+class CameraView:
+    """The camera a frame came from: OpenCV intrinsics ``K`` of the ``width`` x ``height``
+    image, its optical frame (x right, y down, z forward) in odom (``position``,
+    ``orientation`` [w, x, y, z]), and optionally its depth image (m along the optical axis,
+    0 = no return) at full or any reduced resolution (pixels are scaled to it)."""
+
+    camera: str
+    K: np.ndarray
+    width: int
+    height: int
+    position: np.ndarray
+    orientation: np.ndarray
+    depth: np.ndarray | None = None
+    # The detector's working range for this camera; None: MemoryConfig's.
+    min_range: float | None = None
+    max_range: float | None = None
+
+
+@dataclass
+class Track:
+    """A remembered object (odom frame)."""
+
+    id: int
+    class_name: str
+    centroid: np.ndarray
+    extent: np.ndarray
+    confidence: float
+    score: float  # running mean of the detection scores
+    observations: int
+    misses: int  # consecutive frames it should have been seen and was not
+    first_seen: float
+    last_seen: float
+    cameras: frozenset[str] = field(default_factory=frozenset)
+    confirmed: bool = False
+
+    def copy(self) -> Track:
+        return replace(self, centroid=self.centroid.copy(), extent=self.extent.copy())
+
+
+def _as_observation(o: ObservationLike) -> Observation | None:
+    """A checked Observation, or None for garbage (non-finite, wrong shape, bad score)."""
+    try:
+        if not isinstance(o, Observation):
+            cls, score, c, e, cam = o
+            o = Observation(str(cls), float(score), np.asarray(c, float), np.asarray(e, float), cam)
+        c = np.asarray(o.centroid, dtype=float)
+        e = np.asarray(o.extent, dtype=float)
+        score = float(o.score)
+    except (TypeError, ValueError):
+        return None
+    if c.shape != (3,) or e.shape != (3,) or not (np.all(np.isfinite(c)) and math.isfinite(score)):
+        return None
+    if not np.all(np.isfinite(e)) or np.any(e < 0.0) or not 0.0 <= score <= 1.0:
+        return None
+    return Observation(o.class_name, score, c, e, str(o.camera))
+
+
+def _pose_matrix(pose: np.ndarray | tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """A 4x4 homogeneous matrix from itself or a (position, quaternion wxyz) pair."""
+    if isinstance(pose, tuple):
+        p, q = pose
+        t = np.eye(4)
+        t[:3, :3] = quat_to_mat(np.asarray(q, dtype=float))
+        t[:3, 3] = np.asarray(p, dtype=float)
+        return t
+    t = np.asarray(pose, dtype=float)
+    if t.shape != (4, 4):
+        raise ValueError(f"map_T_odom must be 4x4 or (position, quaternion), got {t.shape}")
+    return t
+
+
+class ObjectMemory:
+    """Object tracks in the odom frame, fused from detections over frames and cameras."""
+
+    def __init__(self, config: MemoryConfig | None = None) -> None:
+        self.config = config or MemoryConfig()
+        self._tracks: dict[int, Track] = {}
+        self._next_id = 1
+        self._merged_into: dict[int, int] = {}  # this update's merges: dropped -> kept
+        self.rejected = 0  # malformed observations dropped (for the node's counters)
+
+    # ------------------------------------------------------------------ queries
+    def __len__(self) -> int:
+        return len(self._tracks)
+
+    def tracks(self, confirmed_only: bool = True) -> list[Track]:
+        """Copies of the tracks (confirmed ones only by default), by id."""
+        return [
+            t.copy() for _, t in sorted(self._tracks.items()) if t.confirmed or not confirmed_only
+        ]
+
+    def get(self, track_id: int) -> Track | None:
+        t = self._tracks.get(track_id)
+        return None if t is None else t.copy()
+
+    def to_map(
+        self,
+        map_T_odom: np.ndarray | tuple[np.ndarray, np.ndarray],  # noqa: N803 - frame notation
+        confirmed_only: bool = True,
+    ) -> list[Track]:
+        """The tracks with centroids in the map frame (``map_T_odom``: a 4x4 matrix or a
+        (position, quaternion wxyz) pair); extents become the axis-aligned box around the
+        rotated box."""
+        t = _pose_matrix(map_T_odom)
+        r = t[:3, :3]
+        out = []
+        for tr in self.tracks(confirmed_only):
+            tr.centroid = r @ tr.centroid + t[:3, 3]
+            tr.extent = np.abs(r) @ tr.extent
+            out.append(tr)
+        return out
+
+    # ------------------------------------------------------------------ edits
+    def remove(self, track_id: int) -> bool:
+        """Forget a track (the task picked the object up); False if there was none."""
+        return self._tracks.pop(track_id, None) is not None
+
+    def clear(self) -> None:
+        self._tracks.clear()
+
+    def update(
+        self, observations: Iterable[ObservationLike], view: CameraView | None, stamp: float
+    ) -> list[int]:
+        """Fuse one frame's detections (all from ``view``'s camera; may be empty); returns
+        the ids of the tracks they updated or created, in the observations' order
+        (malformed or low-score observations are skipped and get no id)."""
+        cfg = self.config
+        obs: list[Observation] = []
+        for raw in observations:
+            o = _as_observation(raw)
+            if o is None:
+                self.rejected += 1
+            elif o.score >= cfg.min_score:
+                obs.append(o)
+        # tentative tracks not seen again in time were noise
+        for tid in [
+            i
+            for i, t in self._tracks.items()
+            if not t.confirmed and stamp - t.last_seen > cfg.tentative_ttl
+        ]:
+            del self._tracks[tid]
+
+        before = set(self._tracks)
+        matched: dict[int, int] = self._associate(obs)  # observation index -> track id
+        ids: list[int] = []
+        for k, o in enumerate(obs):
+            tid = matched.get(k)
+            if tid is None:
+                tid = self._new_track(o, stamp)
+            else:
+                self._absorb(self._tracks[tid], o, stamp)
+            ids.append(tid)
+        seen = set(ids)
+        if view is not None:
+            unseen = [i for i in before if i not in seen and i in self._tracks]
+            self._count_misses(unseen, view)
+        self._merge(seen)
+        for t in self._tracks.values():
+            t.confidence = self._confidence(t)
+        return [self._resolve(i) for i in ids]
+
+    def _resolve(self, tid: int) -> int:
+        """The track id ``tid`` lives on as after this update's merges."""
+        while tid not in self._tracks and tid in self._merged_into:
+            tid = self._merged_into[tid]
+        return tid
+
+    # ------------------------------------------------------------------ internals
+    def _gate(self, ext_a: np.ndarray, ext_b: np.ndarray) -> np.ndarray:
+        """Gate radii for broadcast extents (..., 3)."""
+        cfg = self.config
+        half_diag = 0.5 * np.linalg.norm(np.maximum(ext_a, ext_b), axis=-1)
+        return np.clip(cfg.gate_scale * half_diag, cfg.min_gate, cfg.max_gate)
+
+    def _associate(self, obs: list[Observation]) -> dict[int, int]:
+        out: dict[int, int] = {}
+        for cls in {o.class_name for o in obs}:
+            oi = [k for k, o in enumerate(obs) if o.class_name == cls]
+            ti = [i for i, t in self._tracks.items() if t.class_name == cls]
+            if not ti:
+                continue
+            oc = np.array([obs[k].centroid for k in oi])
+            oe = np.array([obs[k].extent for k in oi])
+            tc = np.array([self._tracks[i].centroid for i in ti])
+            te = np.array([self._tracks[i].extent for i in ti])
+            dist = np.linalg.norm(oc[:, None, :] - tc[None, :, :], axis=-1)
+            ok = dist <= self._gate(oe[:, None, :], te[None, :, :])
+            # pairs outside the gate cost more than any feasible set of pairs together
+            cost = np.where(ok, dist, 1e6)
+            rows, cols = linear_sum_assignment(cost)
+            for r, c in zip(rows, cols, strict=True):
+                if ok[r, c]:
+                    out[oi[r]] = ti[c]
+        return out
+
+    def _new_track(self, o: Observation, stamp: float) -> int:
+        tid = self._next_id
+        self._next_id += 1
+        self._tracks[tid] = Track(
+            id=tid,
+            class_name=o.class_name,
+            centroid=o.centroid.copy(),
+            extent=o.extent.copy(),
+            confidence=0.0,
+            score=o.score,
+            observations=1,
+            misses=0,
+            first_seen=stamp,
+            last_seen=stamp,
+            cameras=frozenset({o.camera}) if o.camera else frozenset(),
+            confirmed=self.config.confirm_hits <= 1,
+        )
+        return tid
+
+    def _absorb(self, t: Track, o: Observation, stamp: float) -> None:
+        cfg = self.config
+        t.observations += 1
+        a = max(1.0 / t.observations, cfg.smoothing)
+        t.centroid = (1.0 - a) * t.centroid + a * o.centroid
+        t.extent = (1.0 - a) * t.extent + a * o.extent
+        b = 1.0 / min(t.observations, cfg.score_window)
+        t.score += b * (o.score - t.score)
+        t.misses = 0
+        t.last_seen = max(t.last_seen, stamp)
+        if o.camera:
+            t.cameras = t.cameras | {o.camera}
+        t.confirmed = t.confirmed or t.observations >= cfg.confirm_hits
+
+    def _confidence(self, t: Track) -> float:
+        cfg = self.config
+        evidence = 1.0 - math.exp(-t.observations / cfg.evidence_scale)
+        return float(t.score * evidence * cfg.miss_decay**t.misses)
+
+    def visible(self, points: np.ndarray, sizes: np.ndarray, view: CameraView) -> np.ndarray:
+        """Which odom ``points`` (N, 3) of largest size ``sizes`` (N,) ``view``'s camera
+        should see: in front, in the image, in the detector's range, not hidden."""
+        cfg = self.config
+        pts = np.asarray(points, dtype=float).reshape(-1, 3)
+        r = quat_to_mat(np.asarray(view.orientation, dtype=float))
+        pc = (pts - np.asarray(view.position, dtype=float)) @ r  # = r.T @ (p - t), per row
+        z = pc[:, 2]
+        rng = np.linalg.norm(pc, axis=1)
+        lo = cfg.min_range if view.min_range is None else view.min_range
+        hi = cfg.max_range if view.max_range is None else view.max_range
+        vis = (z > 1e-6) & (rng >= lo) & (rng <= hi)
+        K = np.asarray(view.K, dtype=float)
+        zs = np.where(vis, z, 1.0)
+        u = (K[0, 0] * pc[:, 0] + K[0, 1] * pc[:, 1]) / zs + K[0, 2]
+        v = K[1, 1] * pc[:, 1] / zs + K[1, 2]
+        m = cfg.image_margin
+        vis &= (u >= m) & (u <= view.width - 1 - m) & (v >= m) & (v <= view.height - 1 - m)
+        if view.depth is None or not np.any(vis):
+            return vis
+        depth = np.asarray(view.depth, dtype=float)
+        dh, dw = depth.shape
+        # pixel centres scale with the resolution (a downsampled copy of the image)
+        du = np.clip(((u + 0.5) * dw / view.width - 0.5).round().astype(int), 0, dw - 1)
+        dv = np.clip(((v + 0.5) * dh / view.height - 0.5).round().astype(int), 0, dh - 1)
+        w = np.arange(-cfg.depth_window, cfg.depth_window + 1)
+        cols = np.clip(du[:, None, None] + w[None, None, :], 0, dw - 1)
+        rows = np.clip(dv[:, None, None] + w[None, :, None], 0, dh - 1)
+        win = depth[rows, cols].reshape(len(pts), -1)
+        win = np.where(np.isfinite(win) & (win > 0.0), win, -np.inf)
+        far = win.max(axis=1)
+        known = np.isfinite(far)
+        # no return anywhere at the pixel: no evidence either way, so not a miss
+        hidden = ~known | (far < z - cfg.occlusion_tolerance - 0.5 * np.asarray(sizes))
+        return vis & ~hidden
+
+    def _count_misses(self, ids: list[int], view: CameraView) -> None:
+        if not ids:
+            return
+        cfg = self.config
+        pts = np.array([self._tracks[i].centroid for i in ids])
+        sizes = np.array([float(np.max(self._tracks[i].extent)) for i in ids])
+        for i, vis in zip(ids, self.visible(pts, sizes, view), strict=True):
+            if not vis:
+                continue
+            t = self._tracks[i]
+            t.misses += 1
+            if t.misses >= (cfg.max_misses if t.confirmed else cfg.tentative_max_misses):
+                del self._tracks[i]
+
+    def _merge(self, seen_now: set[int]) -> None:
+        """Merge same-class tracks within each other's gate (not two seen in this frame)."""
+        self._merged_into = {}
+        ids = sorted(self._tracks)
+        if len(ids) < 2:
+            return
+        c = np.array([self._tracks[i].centroid for i in ids])
+        e = np.array([self._tracks[i].extent for i in ids])
+        cls = np.array([self._tracks[i].class_name for i in ids])
+        dist = np.linalg.norm(c[:, None] - c[None], axis=-1)
+        close = (dist <= self._gate(e[:, None], e[None])) & (cls[:, None] == cls[None])
+        close &= np.triu(np.ones_like(close), k=1).astype(bool)
+        for a, b in zip(*np.nonzero(close), strict=True):
+            ia, ib = ids[a], ids[b]
+            if (ia in seen_now and ib in seen_now) or ia not in self._tracks:
+                continue
+            if ib not in self._tracks:
+                continue
+            keep, drop = ia, ib
+            ta, tb = self._tracks[keep], self._tracks[drop]
+            if tb.observations > ta.observations:
+                keep, drop, ta, tb = drop, keep, tb, ta
+            n = ta.observations + tb.observations
+            wa = ta.observations / n
+            ta.centroid = wa * ta.centroid + (1.0 - wa) * tb.centroid
+            ta.extent = wa * ta.extent + (1.0 - wa) * tb.extent
+            ta.score = wa * ta.score + (1.0 - wa) * tb.score
+            ta.observations = n
+            ta.misses = min(ta.misses, tb.misses)
+            ta.first_seen = min(ta.first_seen, tb.first_seen)
+            ta.last_seen = max(ta.last_seen, tb.last_seen)
+            ta.cameras = ta.cameras | tb.cameras
+            ta.confirmed = ta.confirmed or tb.confirmed or n >= self.config.confirm_hits
+            del self._tracks[drop]
+            self._merged_into[drop] = keep

@@ -1,0 +1,291 @@
+"""Object memory: association across frames and cameras, confirmation, negative evidence
+(misses only when the camera should have seen the object), merging, map frame."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from quadmanip.common.rotations import mat_to_quat, quat_from_yaw, rot_z
+from quadmanip.services.perception.object_memory import (
+    CameraView,
+    MemoryConfig,
+    ObjectMemory,
+    Observation,
+)
+
+pytestmark = pytest.mark.unit
+
+W, H = 320, 240
+K = np.array([[188.0, 0.0, 159.5], [0.0, 188.0, 119.5], [0.0, 0.0, 1.0]])
+CUP = np.array([0.08, 0.08, 0.10])
+# optical axes (x right, y down, z forward) of a camera looking along odom +x
+R_FWD = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+def view(
+    camera: str = "front_camera",
+    yaw: float = 0.0,
+    position=(0.0, 0.0, 0.3),
+    depth: np.ndarray | None = None,
+) -> CameraView:
+    """A camera at ``position`` looking horizontally along odom heading ``yaw``."""
+    r = rot_z(yaw) @ R_FWD
+    return CameraView(camera, K, W, H, np.asarray(position, float), mat_to_quat(r), depth)
+
+
+def depth_of(value: float, shape=(H, W)) -> np.ndarray:
+    return np.full(shape, value, dtype=np.float32)
+
+
+def pixel_of(p: np.ndarray, v: CameraView) -> tuple[float, float]:
+    from quadmanip.common.rotations import quat_to_mat
+
+    pc = quat_to_mat(v.orientation).T @ (p - v.position)
+    return K[0, 0] * pc[0] / pc[2] + K[0, 2], K[1, 1] * pc[1] / pc[2] + K[1, 2]
+
+
+def obs(p, cls: str = "cup", score: float = 0.9, camera: str = "front_camera") -> Observation:
+    return Observation(cls, score, np.asarray(p, float), CUP, camera)
+
+
+def confirmed(mem: ObjectMemory, *points: np.ndarray, t0: float = 0.0) -> list[int]:
+    """Confirm cups at ``points`` (all detected in each frame); their track ids."""
+    for k in range(mem.config.confirm_hits):
+        ids = mem.update([obs(p) for p in points], view(depth=depth_of(4.0)), t0 + 0.1 * k)
+    assert all(mem.get(i).confirmed for i in ids)
+    return ids
+
+
+def test_merges_across_frames_and_two_cameras() -> None:
+    mem = ObjectMemory()
+    truth = np.array([1.5, 0.1, 0.05])
+    rng = np.random.default_rng(0)
+    confidences = []
+    for k in range(6):
+        cam = "front_camera" if k % 2 == 0 else "gripper_camera"
+        noisy = truth + rng.normal(0.0, 0.01, 3)
+        ids = mem.update([obs(noisy, camera=cam)], view(cam, depth=depth_of(4.0)), 0.1 * k)
+        assert ids == [1]  # every detection lands on the same track
+        confidences.append(mem.get(1).confidence)
+    (t,) = mem.tracks()
+    assert t.observations == 6
+    assert t.cameras == {"front_camera", "gripper_camera"}
+    assert np.linalg.norm(t.centroid - truth) < 0.012  # smoothed, not the last sample
+    assert t.first_seen == 0.0 and t.last_seen == pytest.approx(0.5)
+    assert np.all(np.diff(confidences) > 0.0)  # more evidence, more confidence
+    assert 0.0 < t.confidence <= 0.9
+
+
+def test_tracks_that_drift_together_are_merged() -> None:
+    """A first, poor estimate from one camera and a good one from the other start two
+    tracks; once refined within one gate of each other they are one object."""
+    mem = ObjectMemory(MemoryConfig(min_gate=0.1, max_gate=0.1, tentative_max_misses=2))
+    (a,) = mem.update([obs([1.5, 0.0, 0.05])], view("front_camera"), 0.0)
+    (b,) = mem.update([obs([1.5, 0.12, 0.05], camera="gripper_camera")], view(), 0.1)
+    assert b != a and len(mem.tracks(confirmed_only=False)) == 2
+    ids = mem.update([obs([1.5, 0.055, 0.05])], view("front_camera"), 0.2)
+    assert ids == [a]  # the survivor is the track with more observations
+    (t,) = mem.tracks(confirmed_only=False)
+    assert t.id == a and t.observations == 3 and t.confirmed
+    assert t.cameras == {"front_camera", "gripper_camera"}
+    assert t.centroid[1] == pytest.approx((2 * 0.0275 + 0.12) / 3)
+    assert t.first_seen == 0.0 and t.last_seen == pytest.approx(0.2)
+
+
+def test_confirmation_needs_k_observations() -> None:
+    mem = ObjectMemory(MemoryConfig(confirm_hits=3))
+    p = np.array([1.2, -0.2, 0.05])
+    mem.update([obs(p)], view(), 0.0)
+    assert mem.tracks() == []
+    assert len(mem.tracks(confirmed_only=False)) == 1
+    mem.update([obs(p)], view(), 0.1)
+    assert mem.tracks() == []
+    mem.update([obs(p)], view(), 0.2)
+    (t,) = mem.tracks()
+    assert t.confirmed and t.observations == 3
+
+
+def test_spurious_detection_is_forgotten() -> None:
+    mem = ObjectMemory(MemoryConfig(tentative_ttl=5.0))
+    p = np.array([1.2, 0.0, 0.05])
+    # seen once, then in plain view and not detected: gone at once
+    mem.update([obs(p)], view(), 0.0)
+    mem.update([], view(depth=depth_of(4.0)), 0.1)
+    assert len(mem) == 0
+    # seen once, then never looked at again: gone after the time to live
+    mem.update([obs(p)], view(), 1.0)
+    mem.update([], view(yaw=math.pi), 3.0)  # looking away
+    assert len(mem.tracks(confirmed_only=False)) == 1
+    mem.update([], view(yaw=math.pi), 6.5)
+    assert len(mem) == 0
+
+
+def test_removed_after_n_misses_in_view() -> None:
+    cfg = MemoryConfig(max_misses=3)
+    mem = ObjectMemory(cfg)
+    p = np.array([1.5, 0.1, 0.05])
+    (tid,) = confirmed(mem, p)
+    c0 = mem.get(tid).confidence
+    # the floor behind the cup's place is visible (farther than the cup): it is gone
+    mem.update([], view(depth=depth_of(2.5)), 1.0)
+    t = mem.get(tid)
+    assert t.misses == 1 and t.confidence < c0
+    mem.update([], view(depth=depth_of(2.5)), 1.1)
+    assert mem.get(tid).misses == 2
+    mem.update([], view(depth=depth_of(2.5)), 1.2)
+    assert mem.get(tid) is None and mem.tracks() == []
+
+
+def test_a_detection_resets_the_misses() -> None:
+    mem = ObjectMemory(MemoryConfig(max_misses=2))
+    p = np.array([1.5, 0.1, 0.05])
+    (tid,) = confirmed(mem, p)
+    mem.update([], view(depth=depth_of(2.5)), 1.0)
+    mem.update([obs(p)], view(depth=depth_of(2.5)), 1.1)
+    mem.update([], view(depth=depth_of(2.5)), 1.2)
+    assert mem.get(tid).misses == 1
+
+
+def test_no_miss_when_occluded() -> None:
+    mem = ObjectMemory(MemoryConfig(max_misses=1))
+    p = np.array([1.5, 0.1, 0.05])
+    (tid,) = confirmed(mem, p)
+    # a chair leg 0.8 m away hides it
+    for k in range(5):
+        mem.update([], view(depth=depth_of(0.8)), 1.0 + k)
+    assert mem.get(tid).misses == 0
+    # no depth return at all at its pixel: no evidence either way
+    mem.update([], view(depth=depth_of(0.0)), 7.0)
+    assert mem.get(tid).misses == 0
+    # the cup's own surface (a little nearer than its centroid) does not hide it
+    mem.update([], view(depth=depth_of(1.46)), 8.0)
+    assert mem.get(tid) is None
+
+
+def test_occluder_only_at_the_tracks_pixel_in_a_downsampled_depth() -> None:
+    """The depth copy may be smaller than the image: the track's pixel is scaled to it."""
+    mem = ObjectMemory(MemoryConfig(max_misses=1, depth_window=0))
+    p = np.array([1.5, 0.3, 0.05])
+    (tid,) = confirmed(mem, p)
+    v = view()
+    u, w = pixel_of(p, v)
+    small = depth_of(2.5, (H // 4, W // 4))
+    r, c = int(w / 4), int(u / 4)
+    small[r - 1 : r + 2, c - 1 : c + 2] = 0.7  # an occluder just there, at quarter resolution
+    mem.update([], view(depth=small), 1.0)
+    assert mem.get(tid).misses == 0
+    moved = depth_of(2.5, (H // 4, W // 4))
+    moved[r - 1 : r + 2, c + 9 : c + 12] = 0.7  # elsewhere: the cup is gone
+    mem.update([], view(depth=moved), 1.1)
+    assert mem.get(tid) is None
+
+
+def test_no_miss_out_of_view_or_out_of_range() -> None:
+    mem = ObjectMemory(MemoryConfig(max_misses=1, max_range=3.0))
+    near = np.array([1.5, 0.1, 0.05])
+    far = np.array([5.0, 0.0, 0.05])
+    side = np.array([0.5, 1.5, 0.05])  # 72 deg to the left, outside the 80 deg wide view
+    behind = np.array([-1.0, 0.0, 0.05])
+    ids = confirmed(mem, near, far, side, behind)
+    mem.update([], view(depth=depth_of(6.0)), 1.0)
+    assert mem.get(ids[0]) is None  # in view and missing
+    assert all(mem.get(i) is not None and mem.get(i).misses == 0 for i in ids[1:])
+    # a camera with a longer working range does see the far one
+    long = CameraView("front_camera", K, W, H, np.array([0.0, 0, 0.3]), mat_to_quat(R_FWD),
+                      depth_of(6.0), max_range=6.0)  # fmt: skip
+    mem.update([], long, 2.0)
+    assert mem.get(ids[1]) is None
+
+
+def test_same_class_objects_are_kept_apart() -> None:
+    mem = ObjectMemory()
+    a, b = np.array([1.5, 0.0, 0.05]), np.array([1.5, 0.2, 0.05])
+    rng = np.random.default_rng(1)
+    for k in range(4):
+        dets = [obs(a + rng.normal(0, 0.01, 3)), obs(b + rng.normal(0, 0.01, 3))]
+        ids = mem.update(dets[:: 1 if k % 2 else -1], view(depth=depth_of(4.0)), 0.1 * k)
+        assert len(set(ids)) == 2
+    tracks = mem.tracks()
+    assert len(tracks) == 2
+    got = sorted(tracks, key=lambda t: t.centroid[1])
+    assert np.linalg.norm(got[0].centroid - a) < 0.02
+    assert np.linalg.norm(got[1].centroid - b) < 0.02
+    assert all(t.observations == 4 for t in tracks)
+
+
+def test_two_detections_in_one_frame_are_two_objects_even_when_close() -> None:
+    mem = ObjectMemory()
+    a, b = np.array([1.5, 0.0, 0.05]), np.array([1.5, 0.07, 0.05])  # within one gate
+    for k in range(3):
+        ids = mem.update([obs(a), obs(b)], view(), 0.1 * k)
+        assert len(set(ids)) == 2
+    assert len(mem.tracks()) == 2
+
+
+def test_classes_are_not_mixed() -> None:
+    mem = ObjectMemory()
+    p = np.array([1.5, 0.0, 0.05])
+    for k in range(3):
+        mem.update([obs(p, "cup"), obs(p + 0.01, "ball")], view(), 0.1 * k)
+    assert sorted(t.class_name for t in mem.tracks()) == ["ball", "cup"]
+
+
+def test_remove_and_tuple_observations() -> None:
+    mem = ObjectMemory(MemoryConfig(confirm_hits=1))
+    (tid,) = mem.update([("cup", 0.8, [1.0, 0.0, 0.05], [0.08, 0.08, 0.1], "front_camera")],
+                        view(), 0.0)  # fmt: skip
+    assert mem.tracks()[0].id == tid
+    assert mem.remove(tid) is True
+    assert mem.remove(tid) is False
+    assert mem.tracks(confirmed_only=False) == []
+
+
+def test_malformed_observations_are_counted_not_raised() -> None:
+    mem = ObjectMemory()
+    bad = [
+        obs([np.nan, 0.0, 0.0]),
+        Observation("cup", 0.9, np.zeros(2), CUP),
+        Observation("cup", 1.7, np.zeros(3), CUP),  # score outside [0, 1]
+        Observation("cup", 0.9, np.zeros(3), -CUP),
+        ("cup", "high", [1, 0, 0], [0.1, 0.1, 0.1], "x"),
+    ]
+    ids = mem.update([*bad, obs([1.0, 0.0, 0.05])], view(), 0.0)
+    assert len(ids) == 1 and mem.rejected == len(bad)
+    assert len(mem.tracks(confirmed_only=False)) == 1
+
+
+def test_low_scores_are_ignored() -> None:
+    mem = ObjectMemory(MemoryConfig(min_score=0.5))
+    assert mem.update([obs([1.0, 0, 0], score=0.3)], view(), 0.0) == []
+    assert len(mem) == 0
+
+
+def test_to_map() -> None:
+    mem = ObjectMemory(MemoryConfig(confirm_hits=1))
+    p = np.array([1.0, 0.5, 0.05])
+    mem.update([Observation("box", 0.9, p, np.array([0.3, 0.1, 0.2]))], view(), 0.0)
+    yaw, shift = math.pi / 2, np.array([2.0, -1.0, 0.0])
+    t = np.eye(4)
+    t[:3, :3], t[:3, 3] = rot_z(yaw), shift
+    for pose in (t, (shift, quat_from_yaw(yaw))):
+        (m,) = mem.to_map(pose)
+        np.testing.assert_allclose(m.centroid, rot_z(yaw) @ p + shift, atol=1e-9)
+        np.testing.assert_allclose(m.extent, [0.1, 0.3, 0.2], atol=1e-9)  # turned 90 deg
+    np.testing.assert_allclose(mem.tracks()[0].centroid, p)  # the memory itself unchanged
+
+
+def test_tracks_are_copies() -> None:
+    mem = ObjectMemory(MemoryConfig(confirm_hits=1))
+    mem.update([obs([1.0, 0.0, 0.05])], view(), 0.0)
+    t = mem.tracks()[0]
+    t.centroid[:] = 99.0
+    assert mem.tracks()[0].centroid[0] == pytest.approx(1.0)
+
+
+def test_config_is_checked() -> None:
+    with pytest.raises(ValueError):
+        MemoryConfig(min_gate=0.5, max_gate=0.1)
+    with pytest.raises(ValueError):
+        MemoryConfig(confirm_hits=0)
