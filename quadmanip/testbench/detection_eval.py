@@ -14,6 +14,7 @@ import contextlib
 import io
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +22,10 @@ import cv2
 import numpy as np
 from quadmanip.services.perception.detector import Detection, Detector, DetectorConfig
 
-__all__ = ["draw_detections", "evaluate", "main"]
+__all__ = ["EVAL_MAX_DETECTIONS", "EVAL_THRESHOLD", "draw_detections", "evaluate", "main"]
+
+EVAL_THRESHOLD = 0.02  # detections kept for scoring (COCO ranks them all)
+EVAL_MAX_DETECTIONS = 100
 
 
 def _coco_scores(gt_path: Path, results: list[dict[str, Any]]) -> dict[str, Any]:
@@ -137,11 +141,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sheet", type=Path, default=None, help="draw detections on 24 frames")
     ap.add_argument("--limit", type=int, default=None, help="first N frames only")
     args = ap.parse_args(argv)
-    cfg = (
-        DetectorConfig()
-        if args.weights is None
-        else DetectorConfig(weights=str(args.weights.resolve()))
-    )
+    # COCO scores the whole ranked list: a run-time score threshold would cut recall
+    cfg = DetectorConfig(score_threshold=EVAL_THRESHOLD, max_detections=EVAL_MAX_DETECTIONS)
+    if args.weights is not None:
+        cfg = replace(cfg, weights=str(args.weights.resolve()))
     det = Detector(cfg)
     out = evaluate(args.data, det, args.limit, args.sheet)
     out["weights"] = str(cfg.weights)

@@ -1,0 +1,210 @@
+"""Per-frame perception without transport: check a camera frame, detect, place each
+detection in 3-D (Section 4.1-4.2), and pick the detection a grasp request means.
+
+The node (``node.py``) calls these from its worker and action threads; tests call them
+on rendered frames directly.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+from quadmanip.common.rotations import mat_to_quat, quat_mul, quat_to_mat
+from quadmanip.services.perception.detector import Detection
+from quadmanip.services.perception.outlier_filter import FilterConfig, filter_object
+from quadmanip.services.perception.point_cloud import lift_box
+
+if TYPE_CHECKING:  # the frames are RgbdImage messages; this module only reads their fields
+    from quadmanip.common import messages as m
+
+__all__ = [
+    "FrameConfig",
+    "Located",
+    "camera_in_odom",
+    "frame_problem",
+    "level_frame",
+    "locate_detection",
+    "pick_target",
+    "surface_of",
+]
+
+TABLE_MIN_HEIGHT = 0.15  # m: an object resting higher than this lies on a table
+
+# Focal lengths (px) a real RGB-D camera can have at up to 1280 px width: 2-170 deg FOV.
+_FOCAL_RANGE = (20.0, 20000.0)
+
+
+@dataclass(frozen=True)
+class FrameConfig:
+    """How detections are placed in 3-D (``[frames]`` of configs/perception.toml)."""
+
+    stride: int = 2  # px: every second row and column of a box (a quarter of the points)
+    max_range: float = 3.5  # m: returns farther than this are not used to place objects
+    min_points: int = 12  # object points needed to place a detection
+    min_valid_depth: float = 0.01  # share of pixels with a return below which depth is "empty"
+
+
+@dataclass(frozen=True)
+class Located:
+    """A detection placed in 3-D: centroid (base and odom frames), axis-aligned extent in
+    odom, and its distance from the base (horizontal)."""
+
+    detection: Detection
+    centroid_base: np.ndarray
+    centroid_odom: np.ndarray
+    extent: np.ndarray
+    distance: float
+
+
+def frame_problem(img: m.RgbdImage, cfg: FrameConfig | None = None) -> str:
+    """Why a frame cannot be used ("" if it can): no colour, absurd intrinsics, no depth."""
+    cfg = cfg or FrameConfig()
+    h, w = img.depth.shape
+    if h < 16 or w < 16:
+        return f"image too small ({w}x{h})"
+    if img.rgb.size == 0:
+        return "no colour image (depth only): the detector needs colour"
+    K = img.K
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    if not (np.allclose(K[2], [0.0, 0.0, 1.0]) and K[1, 0] == 0.0):
+        return f"intrinsics are not a pinhole K (last row {K[2].tolist()})"
+    lo, hi = _FOCAL_RANGE
+    if not (lo <= fx <= hi and lo <= fy <= hi) or not (0.2 <= fx / fy <= 5.0):
+        return f"absurd focal lengths fx={fx:.4g} fy={fy:.4g} px"
+    if not (-0.5 * w <= cx <= 1.5 * w and -0.5 * h <= cy <= 1.5 * h):
+        return f"principal point ({cx:.4g}, {cy:.4g}) far outside the {w}x{h} image"
+    valid = float(np.count_nonzero(img.depth)) / img.depth.size
+    if valid < cfg.min_valid_depth:
+        return f"empty depth: {100 * valid:.2g} % of pixels have a return"
+    return ""
+
+
+def level_frame(img: m.RgbdImage, base_orientation: np.ndarray) -> m.RgbdImage:
+    """The frame with its camera pose moved from the base frame to the *level* body frame
+    (the base's heading only, z up): the frame manipulation's goals are in (it plans for a
+    level trunk), and the frame whose z is gravity's up for the height maps. A 2 deg
+    trunk pitch would otherwise move a point 0.5 m ahead by 1.7 cm in height."""
+    r = quat_to_mat(base_orientation)
+    yaw = math.atan2(r[1, 0], r[0, 0])
+    c, s = math.cos(yaw), math.sin(yaw)
+    tilt = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]]) @ r  # level <- base
+    q_tilt = mat_to_quat(tilt)
+    return replace(
+        img,
+        position=tilt @ img.position,
+        orientation=quat_mul(q_tilt, img.orientation),
+    )
+
+
+def camera_in_odom(
+    img: m.RgbdImage, base_position: np.ndarray, base_orientation: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The camera's optical frame in odom (position, quaternion [w,x,y,z])."""
+    r = quat_to_mat(base_orientation)
+    return (
+        np.asarray(base_position, float) + r @ img.position,
+        quat_mul(base_orientation, img.orientation),
+    )
+
+
+def locate_detection(
+    img: m.RgbdImage,
+    det: Detection,
+    base_position: np.ndarray,
+    base_orientation: np.ndarray,
+    cfg: FrameConfig | None = None,
+    filt: FilterConfig | None = None,
+) -> Located | None:
+    """Section 4.1-4.2 for one detection: its box's depth pixels lifted to the base frame,
+    split from the background and the supporting plane, and summarised as a centroid
+    (middle of the 5-95 % range per axis: robust to stray pixels) and extent in odom."""
+    cfg = cfg or FrameConfig()
+    cloud = lift_box(
+        img.depth,
+        det.box,
+        img.K,
+        img.position,
+        img.orientation,
+        stride=cfg.stride,
+        max_depth=cfg.max_range,
+    )
+    if len(cloud) < cfg.min_points:
+        return None
+    r = quat_to_mat(base_orientation)
+    up = r.T @ np.array([0.0, 0.0, 1.0])  # gravity's up in the base frame
+    fr = filter_object(
+        cloud.points,
+        cloud.camera_position,
+        filt or FilterConfig(min_points=cfg.min_points),
+        up=up,
+    )
+    pts = fr.object_points
+    if pts.shape[0] < cfg.min_points:
+        return None
+    odom = pts @ r.T + np.asarray(base_position, float)
+    lo, hi = np.percentile(odom, [5.0, 95.0], axis=0)
+    c_odom = 0.5 * (lo + hi)
+    c_base = r.T @ (c_odom - np.asarray(base_position, float))
+    return Located(
+        detection=det,
+        centroid_base=c_base,
+        centroid_odom=c_odom,
+        extent=np.maximum(hi - lo, 0.0),
+        distance=float(math.hypot(c_base[0], c_base[1])),
+    )
+
+
+def surface_of(loc: Located | None, base: tuple[np.ndarray, np.ndarray] | None) -> str:
+    """``table`` when the object's bottom is well above the floor, else ``floor``.
+
+    The odom frame's z is the height above the floor the robot stands on (the odometry
+    starts on it), so without odometry (``base`` None) or a placement it answers ``floor``.
+    """
+    if loc is None or base is None:
+        return "floor"
+    bottom = float(loc.centroid_odom[2] - 0.5 * loc.extent[2])
+    return "table" if bottom > TABLE_MIN_HEIGHT else "floor"
+
+
+def pick_target(
+    located: list[Located],
+    detections: list[Detection],
+    image_size: tuple[int, int],
+    label: str = "",
+    near_odom: np.ndarray | None = None,
+    gate: float = 0.2,
+) -> tuple[Detection | None, Located | None, str]:
+    """The detection a grasp request means: the one of ``label`` nearest ``near_odom`` (a
+    track's centroid, within ``gate`` m); else the best-scored of ``label``; else the one
+    nearest the image centre. Returns (detection, its placement or None, why-not)."""
+    h, w = image_size
+    pool = [d for d in detections if not label or d.label == label]
+    if not pool:
+        what = label or "object"
+        return None, None, f"not in view: no {what} detected"
+    where = {id(x.detection): x for x in located}
+    if near_odom is not None:
+        best, best_d = None, gate
+        for d in pool:
+            loc = where.get(id(d))
+            if loc is None:
+                continue
+            dist = float(np.linalg.norm(loc.centroid_odom[:2] - np.asarray(near_odom)[:2]))
+            if dist <= best_d:
+                best, best_d = d, dist
+        if best is None:
+            return None, None, f"not in view: no {label or 'object'} within {gate} m of the track"
+        return best, where.get(id(best)), ""
+
+    def centre_dist(d: Detection) -> float:
+        x0, y0, x1, y1 = d.box
+        return math.hypot(0.5 * (x0 + x1) - w / 2, 0.5 * (y0 + y1) - h / 2)
+
+    if label:
+        best = max(pool, key=lambda d: (round(d.score, 2), -centre_dist(d)))
+    else:
+        best = min(pool, key=centre_dist)
+    return best, where.get(id(best)), ""
