@@ -26,6 +26,7 @@ BENCH_TARGETS: dict[str, str] = {
     "manipulation": "quadmanip.testbench.bench_manipulation:main",
     "robustness": "quadmanip.testbench.bench_robustness:main",
     "navigation": "quadmanip.testbench.bench_navigation:main",
+    "perception": "quadmanip.testbench.bench_perception:main",
 }
 ROUTER_TARGET = "quadmanip.common.router:main"
 SIM_TOOLS: dict[str, str] = {"snapshot": "quadmanip.sim.snapshot:main"}

@@ -19,6 +19,7 @@ SERVICES: dict[str, str] = {
     "sim": "quadmanip.sim.node:main",
     "locomotion": "quadmanip.services.locomotion.node:main",
     "manipulation": "quadmanip.services.manipulation.node:main",
+    "perception": "quadmanip.services.perception.node:main",
     "navigation": "quadmanip.services.navigation.node:main",
     "viz": "quadmanip.services.viz.node:main",
     # The hardware adapter fills the sim's role on a Unitree SDK2 robot (docs/hardware.md),

@@ -34,6 +34,8 @@ __all__ = [
     "Detector",
     "DetectorConfig",
     "NetworkShape",
+    "box_iou",
+    "reported",
     "decode",
     "encode_input",
 ]
@@ -57,7 +59,14 @@ class DetectorConfig:
     """Which weights to run and how to decode (``[detector]`` of configs/perception.toml)."""
 
     weights: str = "models/detector.pt"  # relative to the perception package, or absolute
-    score_threshold: float = 0.3  # detections below are dropped
+    # Decoding keeps peaks down to this score: a grasp request that names a class may take
+    # that class's box at a low score (the task knows what it looks for); what perception
+    # reports and remembers on its own needs ``report_threshold``.
+    score_threshold: float = 0.1
+    report_threshold: float = 0.3
+    # One object, one report: a box overlapping a better-scored one of another class by
+    # more than this IoU is that object's runner-up class, not a second object.
+    overlap_iou: float = 0.6
     max_detections: int = 30
     threads: int = 1  # torch intra-op threads at run time (the node's budget is one core)
     classes: tuple[str, ...] = field(default_factory=tuple)  # empty: from the weights file
@@ -175,6 +184,27 @@ def weights_path(weights: str) -> Path:
     """A configured weights path: absolute, or relative to this package's folder."""
     p = Path(weights).expanduser()
     return p if p.is_absolute() else PACKAGE_DIR / p
+
+
+def box_iou(a: tuple[float, ...], b: tuple[float, ...]) -> float:
+    """Intersection over union of two boxes (x0, y0, x1, y1)."""
+    ix = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
+    iy = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+    inter = ix * iy
+    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
+    return inter / union if union > 0 else 0.0
+
+
+def reported(dets: list[Detection], threshold: float, overlap_iou: float) -> list[Detection]:
+    """What perception reports on its own: scores >= ``threshold``, and of boxes that
+    overlap by more than ``overlap_iou`` only the best-scored (class-agnostic NMS)."""
+    keep: list[Detection] = []
+    for d in sorted(dets, key=lambda x: -x.score):
+        if d.score < threshold:
+            break
+        if all(box_iou(d.box, k.box) <= overlap_iou for k in keep):
+            keep.append(d)
+    return keep
 
 
 def load_checkpoint(path: Path) -> dict[str, Any]:

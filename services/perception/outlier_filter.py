@@ -23,7 +23,8 @@ What we do, and why:
 
    * the camera is above (a row of an object's face seen from below a table is no table),
    * is a surface, not a line (its inliers spread across their main direction),
-   * has the object on it (enough points above: a box's own top face has none),
+   * has the object on it (enough points above, rising at least ``surface_min_object``:
+     a box's own top face and a ball's flat-looking cap have none),
    * is not enclosed by the object (a bowl's bottom is surrounded by its wall),
 
    the one that scores best: its inliers less a penalty for the points under it that lie
@@ -77,6 +78,7 @@ class FilterConfig:
     footprint_cell: float = 0.004  # m: raster of the object's footprint for that test
     surface_clearance: float = 0.004  # m: object points lie this far above the surface
     surface_below_penalty: float = 2.0  # inliers a point below a support hypothesis costs
+    surface_min_object: float = 0.01  # m: what stands on a support rises at least this high
     seed: int = 0  # RANSAC's random generator (deterministic results)
     # Self filter: points inside this base-frame box are the robot's own body (trunk,
     # LiDAR dome, front camera: configs/robot/quadmanip_dog.xml, trunk half-size 0.2095 x
@@ -254,17 +256,15 @@ def _support_plane(
             break
         planes.append(pl)
         rest = rest[np.abs(pl.distance(rest)) > cfg.plane_tolerance]
-    on_plane = [np.abs(pl.distance(pts)) <= cfg.plane_tolerance for pl in planes]
-    best, best_score = None, -np.inf
-    for n, pl in enumerate(planes):
+    valid: list[Plane] = []
+    for pl in planes:
         if float(pl.normal @ cam) - pl.offset <= cfg.plane_tolerance:
             continue  # the camera is below it: it cannot see a surface there (rows of a face)
         d = pl.distance(pts)
         above = d > cfg.surface_clearance
-        if above.sum() < cfg.min_points:
-            continue  # nothing stands on it: the object's own top
-        inl = np.abs(d) <= cfg.plane_tolerance
-        q = pts[inl] @ flat
+        if above.sum() < cfg.min_points or d.max() < cfg.surface_min_object:
+            continue  # nothing stands on it: the object's own top (or a ball's cap)
+        q = pts[np.abs(d) <= cfg.plane_tolerance] @ flat
         # what the object encloses (a bowl's or a cup's bottom, level with the floor within
         # the tolerance) is not what it stands on
         q = q[~_enclosed(pts[above] @ flat, q, cfg.footprint_cell)]
@@ -274,14 +274,19 @@ def _support_plane(
             math.sqrt(q.shape[0])
         ):
             continue  # a line, not a surface: the bottom row of an object seen from the side
-        # points under it that lie on no other plane are part of the object: a band
-        # around a ball's middle has its lower half under it; a table has only the floor
+        valid.append(pl)
+    # the best scores its (not enclosed) inliers less a penalty for the points under it
+    # that lie on no other plane: a band around a ball's middle has the ball's lower half
+    # under it; a table has only the floor past its edge
+    best, best_score = None, -np.inf
+    on_plane = {id(pl): np.abs(pl.distance(pts)) <= cfg.plane_tolerance for pl in planes}
+    for pl in valid:
         others = np.zeros(len(pts), bool)
-        for m, mask in enumerate(on_plane):
-            if m != n:
-                others |= mask
-        under = int(((d < -cfg.plane_tolerance) & ~others).sum())
-        score = q.shape[0] - cfg.surface_below_penalty * under
+        for other in planes:
+            if other is not pl:
+                others |= on_plane[id(other)]
+        under = int(((pl.distance(pts) < -cfg.plane_tolerance) & ~others).sum())
+        score = int(on_plane[id(pl)].sum()) - cfg.surface_below_penalty * under
         if score > best_score:
             best, best_score = pl, score
     return best

@@ -1,0 +1,217 @@
+"""Rendered probing views of one object, with ground truth for scoring (TEST/BENCH ONLY).
+
+A view is what perception gets while the robot stands in front of an object with its arm
+in a probing posture (paper Fig. 5): the gripper camera looking down (``probe_floor`` for
+a floor object, ``probe_table`` for one on a table) or, for a tall table object, the front
+camera with the arm lifted away (``probe_horizontal``). The scene is the one of the
+full-stack grasp trials (:func:`quadmanip.testbench.stack_trials.grasp_scenario`), placed
+kinematically (no physics step): the robot stands at its ``home`` keyframe at the
+scenario's start pose, the arm at the posture from ``configs/manipulation.toml``.
+
+Besides the RGB-D frame (exactly what the sim publishes: K and the optical-frame pose in
+the base frame) a view carries ground truth that only tests and benchmarks may read: the
+object's segmentation mask (a MuJoCo segmentation render of the same camera), its 2-D box,
+its world pose, the base pose, the supporting surface height and the harness's current
+ground-truth grasp (:func:`quadmanip.testbench.manipulation_scenes.grasp_from_poses`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+from quadmanip.common import robot_description as rd
+from quadmanip.sim.sensors import CameraConfig, RgbdRenderer
+from quadmanip.sim.world.builder import World, build_world
+from quadmanip.sim.world.house import load_house
+from quadmanip.sim.world.objects import Catalogue, load_catalogue
+from quadmanip.testbench.manipulation_scenes import GraspSpec, grasp_from_poses
+from quadmanip.testbench.stack_trials import GRASP_TABLE, approach_for, grasp_scenario
+
+__all__ = ["ProbeView", "probe_posture", "render_probe_view"]
+
+
+@dataclass(frozen=True)
+class ProbeView:
+    """One rendered probing view and its ground truth (world frame unless stated)."""
+
+    name: str
+    where: str  # "floor" | "table"
+    seed: int
+    probing: str  # "vertical" (gripper camera) | "horizontal" (front camera)
+    camera: str
+    rgb: np.ndarray  # uint8 (H, W, 3)
+    depth: np.ndarray  # float32 (H, W), metres, 0 = no return
+    K: np.ndarray  # OpenCV intrinsics
+    cam_position: np.ndarray  # optical frame origin in the base frame
+    cam_orientation: np.ndarray  # [w, x, y, z], base -> optical (x right, y down, z fwd)
+    # --- ground truth (tests and benchmarks only) ---
+    mask: np.ndarray  # bool (H, W): pixels showing the object
+    box: tuple[int, int, int, int] | None  # (u0, v0, u1, v1) pixel box, end exclusive
+    obj_position: np.ndarray
+    obj_rotation: np.ndarray  # 3x3
+    base_position: np.ndarray
+    base_rotation: np.ndarray  # 3x3
+    surface_z: float  # height of the supporting surface
+    gt: GraspSpec  # the harness's ground-truth grasp (base frame)
+
+    def surface_z_base(self) -> float:
+        """Supporting surface height in the base frame (at the object; the base may tilt)."""
+        p = self.obj_position.copy()
+        p[2] = self.surface_z
+        return float((self.base_rotation.T @ (p - self.base_position))[2])
+
+
+def probe_posture(cat: Catalogue, name: str, where: str) -> tuple[str, str, str]:
+    """(posture, camera, probing direction) for ``name`` on the floor or on a table."""
+    if where == "floor":
+        return "probe_floor", rd.GRIPPER_CAMERA, "vertical"
+    if approach_for(cat, name, where) == "horizontal":
+        return "probe_horizontal", rd.FRONT_CAMERA, "horizontal"
+    return "probe_table", rd.GRIPPER_CAMERA, "vertical"
+
+
+_POSTURES: dict[str, np.ndarray] | None = None
+
+
+def _postures() -> dict[str, np.ndarray]:
+    global _POSTURES
+    if _POSTURES is None:
+        from quadmanip.services.manipulation.arm_kinematics import ArmGeometry
+        from quadmanip.services.manipulation.config import load_manipulation_config
+        from quadmanip.services.manipulation.postures import resolve_postures
+
+        _POSTURES = resolve_postures(ArmGeometry.from_description(), load_manipulation_config())
+    return _POSTURES
+
+
+def _stand(world: World, data: mujoco.MjData, arm_q: np.ndarray) -> None:
+    """Robot standing at its home keyframe where the scenario put it, arm at ``arm_q``."""
+    m = world.model
+    home = rd.home_qpos()
+    rm = rd.load_mujoco_model()
+    adr = m.jnt_qposadr[m.joint(rd.FREE_JOINT).id]
+    data.qpos[adr + 2] = home[rd.free_joint_qpos_index(rm) + 2]
+    for j in rd.LEG_JOINTS:
+        data.qpos[m.jnt_qposadr[m.joint(j).id]] = home[rm.jnt_qposadr[rm.joint(j).id]]
+    for j, q in zip(rd.ARM_JOINTS, arm_q, strict=True):
+        data.qpos[m.jnt_qposadr[m.joint(j).id]] = q
+    for j in rd.GRIPPER_JOINTS:  # fingers open: out of the gripper camera's view
+        jid = m.joint(j).id
+        data.qpos[m.jnt_qposadr[jid]] = m.jnt_range[jid][1]
+    mujoco.mj_forward(m, data)
+
+
+def _segment(renderer: RgbdRenderer, data: mujoco.MjData, camera: str) -> np.ndarray:
+    """Geom id per pixel (-1: none) from a segmentation pass of ``renderer``'s camera.
+
+    The renderer's own ``render_segmentation`` when it has one, else the same pass done
+    here with its GL context, scene and camera (test-only code)."""
+    own = getattr(renderer, "render_segmentation", None)
+    if own is not None:
+        return np.asarray(own(data, camera))
+    cfg = renderer.cameras[camera]
+    r = renderer
+    r._gl.make_current()
+    r._cam.fixedcamid = r._cam_ids[camera]
+    mujoco.mjv_updateScene(
+        r.model, data, r._opt, r._pert, r._cam, mujoco.mjtCatBit.mjCAT_ALL, r._scene
+    )
+    flags = r._scene.flags
+    old = (flags[mujoco.mjtRndFlag.mjRND_SEGMENT], flags[mujoco.mjtRndFlag.mjRND_IDCOLOR])
+    flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = 1
+    flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = 1
+    try:
+        rect = mujoco.MjrRect(0, 0, cfg.width, cfg.height)
+        mujoco.mjr_render(rect, r._scene, r._ctx)
+        rgb = np.empty((cfg.height, cfg.width, 3), np.uint8)
+        mujoco.mjr_readPixels(rgb, None, rect, r._ctx)
+    finally:
+        flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = old[0]
+        flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = old[1]
+    seg = rgb.astype(np.int64)
+    seg = seg[..., 0] + (seg[..., 1] << 8) + (seg[..., 2] << 16)
+    n = r._scene.ngeom
+    lut = np.full(n + 2, -1, np.int64)
+    for g in r._scene.geoms[:n]:
+        if g.segid >= 0 and g.objtype == mujoco.mjtObj.mjOBJ_GEOM:
+            lut[g.segid + 1] = g.objid
+    return np.flipud(lut[np.clip(seg, 0, n + 1)])
+
+
+def _box(mask: np.ndarray) -> tuple[int, int, int, int] | None:
+    rows, cols = np.any(mask, axis=1), np.any(mask, axis=0)
+    if not rows.any():
+        return None
+    v = np.flatnonzero(rows)
+    u = np.flatnonzero(cols)
+    return int(u[0]), int(v[0]), int(u[-1]) + 1, int(v[-1]) + 1
+
+
+def render_probe_view(
+    name: str,
+    where: str,
+    seed: int,
+    catalogue: Catalogue | None = None,
+    camera_config: CameraConfig | None = None,
+    standoff: float = 0.70,
+) -> ProbeView:
+    """Render the probing view of object ``name`` on the ``where`` ('floor'/'table') of the
+    grasp trial ``seed``, with ground truth for scoring."""
+    cat = catalogue or load_catalogue()
+    house = load_house()
+    scn = grasp_scenario(name, where, seed, house, cat)
+    posture, camera, probing = probe_posture(cat, name, where)
+    if probing == "horizontal" and scn.robot_start is not None:
+        # the front camera sits below a table top: it sees the object only from farther
+        # back (the paper's "adjusts its position" before horizontal probing)
+        x, y, yaw = scn.robot_start
+        h = math.radians(yaw)
+        back = (x - standoff * math.cos(h), y - standoff * math.sin(h), yaw)
+        scn = dataclasses.replace(scn, robot_start=back)
+    world = build_world(scn, house=house, catalogue=cat)
+    data = world.initial_data()
+    _stand(world, data, _postures()[posture])
+    renderer = RgbdRenderer(world.model, {camera: camera_config or CameraConfig()})
+    try:
+        frame = renderer.render(data, camera)
+        seg = _segment(renderer, data, camera)
+    finally:
+        renderer.close()
+    bid = world.object_body_ids[name]
+    obj_geoms = np.flatnonzero(world.model.geom_bodyid == bid)
+    mask = np.isin(seg, obj_geoms) & (frame.depth > 0)
+    base = world.model.body(rd.BASE_BODY).id
+    base_pos = data.xpos[base].copy()
+    base_rot = data.xmat[base].reshape(3, 3).copy()
+    obj_pos = data.xpos[bid].copy()
+    obj_rot = data.xmat[bid].reshape(3, 3).copy()
+    surface_z = 0.0
+    if where == "table":
+        surface_z = next(t for t in house.tables if t.name == GRASP_TABLE).height
+    gt = grasp_from_poses(
+        cat, name, obj_pos, obj_rot, base_pos, base_rot, surface_z, approach_for(cat, name, where)
+    )
+    return ProbeView(
+        name=name,
+        where=where,
+        seed=seed,
+        probing=probing,
+        camera=camera,
+        rgb=frame.rgb,
+        depth=frame.depth,
+        K=frame.K,
+        cam_position=frame.position,
+        cam_orientation=frame.orientation,
+        mask=mask,
+        box=_box(mask),
+        obj_position=obj_pos,
+        obj_rotation=obj_rot,
+        base_position=base_pos,
+        base_rotation=base_rot,
+        surface_z=surface_z,
+        gt=gt,
+    )

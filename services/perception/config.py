@@ -1,0 +1,39 @@
+"""Configuration of the perception service (``configs/perception.toml``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from quadmanip.services.perception.detector import DetectorConfig
+from quadmanip.services.perception.frames import FrameConfig
+from quadmanip.services.perception.grasp_pose import GraspConfig
+from quadmanip.services.perception.handle_locator import HandleConfig
+from quadmanip.services.perception.object_memory import MemoryConfig
+
+__all__ = ["NodeConfig", "PerceptionConfig"]
+
+
+@dataclass(frozen=True)
+class NodeConfig:
+    """How the node runs: input timeouts, publication period, what a grasp request
+    waits for and accepts."""
+
+    frame_timeout: float = 1.0  # s (wall) without a frame: the camera is reported silent
+    objects_period: float = 0.5  # s (wall) between object-memory publications
+    odom_max_skew: float = 0.1  # s: odometry further than this from a frame is not used
+    grasp_timeout: float = 3.0  # s (wall) an action waits for a fresh frame, arm still
+    arm_still: float = 0.05  # rad/s: every arm joint slower than this counts as still
+    max_reach: float = 0.75  # m from the base: a farther target is "too far"
+    track_gate: float = 0.2  # m: a detection this near a requested track is that track
+
+
+@dataclass(frozen=True)
+class PerceptionConfig:
+    """All of ``configs/perception.toml``."""
+
+    node: NodeConfig = field(default_factory=NodeConfig)
+    detector: DetectorConfig = field(default_factory=DetectorConfig)
+    frames: FrameConfig = field(default_factory=FrameConfig)
+    grasp: GraspConfig = field(default_factory=GraspConfig)
+    handle: HandleConfig = field(default_factory=HandleConfig)
+    memory: MemoryConfig = field(default_factory=MemoryConfig)

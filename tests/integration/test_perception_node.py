@@ -1,0 +1,168 @@
+"""The perception service over a real Zenoh router, fed rendered camera frames.
+
+`quadmanip service perception` runs as a child process; the test process plays the robot:
+it publishes rendered RGB-D frames of a probing view (the object at its resting pose in
+front of the robot), odometry and joint states (arm still). Answers are checked against
+the ground truth of the render. Bad input (empty depth, absurd intrinsics, a frame with
+no object, a camera that stops) must give reasons, never a crash.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+from quadmanip.common import messages as m
+from quadmanip.testbench.probe_views import render_probe_view
+
+pytestmark = pytest.mark.integration
+
+OBJECT, WHERE = "sugar_box", "floor"
+
+
+def _wait(cond: Callable[[], bool], timeout: float, what: str, proc) -> None:
+    deadline = time.monotonic() + timeout
+    while not cond():
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"{what}\n" + "\n".join(proc.lines[-25:]))
+        time.sleep(0.05)
+
+
+class FakeRobot:
+    """Publishes a frame (swappable), odometry and an arm standing still at 10/50 Hz."""
+
+    def __init__(self, bus, frame: m.RgbdImage, topic: str) -> None:
+        self.bus, self.frame, self.topic = bus, frame, topic
+        self.t = 100.0
+        self.running = True
+        self.cameras_on = True
+        self.pubs = {
+            t: bus.publisher(t)
+            for t in (
+                "sim/camera/front",
+                "sim/camera/gripper",
+                "sim/lowstate",
+                "locomotion/odometry",
+            )
+        }
+        self.thread = threading.Thread(target=self._loop, daemon=True)
+        self.thread.start()
+
+    def _loop(self) -> None:
+        k = 0
+        while self.running:
+            self.t += 0.02
+            stamp = self.t
+            self.pubs["locomotion/odometry"].publish(
+                m.example(m.Odometry, stamp=stamp, position=[1.0, 2.0, 0.3])
+            )
+            ls = m.example(m.LowState, stamp=stamp)
+            self.pubs["sim/lowstate"].publish(ls)
+            if k % 5 == 0 and self.cameras_on:
+                f = self.frame
+                self.pubs[self.topic].publish(
+                    m.RgbdImage(
+                        stamp=stamp,
+                        camera=f.camera,
+                        rgb=f.rgb,
+                        depth=f.depth,
+                        K=f.K,
+                        position=f.position,
+                        orientation=f.orientation,
+                    )  # fmt: skip
+                )
+            k += 1
+            time.sleep(0.02)
+
+    def stop(self) -> None:
+        self.running = False
+        self.thread.join(2.0)
+
+
+@pytest.fixture(scope="module")
+def view():
+    return render_probe_view(OBJECT, WHERE, 0)
+
+
+def _frame(v) -> m.RgbdImage:
+    return m.RgbdImage(stamp=0.0, camera=v.camera, rgb=v.rgb, depth=v.depth, K=v.K,
+                       position=v.cam_position, orientation=v.cam_orientation)  # fmt: skip
+
+
+def _result(bus, action: str, goal: m.Message, proc, timeout: float = 30.0):
+    h = bus.action_client("perception", action).send_goal(goal, timeout=10.0)
+    if not h.accepted:
+        return h, None
+    deadline = time.monotonic() + timeout
+    while (r := h.result(timeout=0.5)) is None:
+        if time.monotonic() > deadline:
+            raise TimeoutError("no result\n" + "\n".join(proc.lines[-25:]))
+    return h, r
+
+
+def test_detects_remembers_and_grasps_then_survives_bad_input(
+    zenoh_router, spawn, bus_factory, view
+):
+    bus = bus_factory(zenoh_router)
+    proc = spawn("-m", "quadmanip.cli", "service", "perception", endpoint=zenoh_router)
+    dets: list[m.Detections] = []
+    bus.subscribe("perception/detections", dets.append)
+    objects = bus.latest("perception/objects")
+    topic = "sim/camera/gripper" if view.camera == "gripper_camera" else "sim/camera/front"
+    robot = FakeRobot(bus, _frame(view), topic)
+    try:
+        # 1. detections of the object, placed in 3-D near the truth (odom = base + (1, 2, 0.3))
+        _wait(lambda: any(OBJECT in d.labels for d in dets), 90.0, "no detection", proc)
+        d = next(d for d in dets if OBJECT in d.labels)
+        i = list(d.labels).index(OBJECT)
+        assert d.located[i] == 1
+        truth_odom = view.base_rotation.T @ (view.obj_position - view.base_position)
+        truth_odom += np.array([1.0, 2.0, 0.3])
+        assert np.linalg.norm(d.centroids[i][:2] - truth_odom[:2]) < 0.05
+        # 2. the memory holds it, confirmed, after a few frames
+        _wait(
+            lambda: (o := objects.get()) is not None
+            and any(lab == OBJECT and c for lab, c in zip(o.labels, o.confirmed, strict=True)),
+            30.0, "no confirmed track", proc,
+        )  # fmt: skip
+        # 3. a grasp of the class: a GraspGoal near the harness's ground-truth grasp
+        _, r = _result(bus, "estimate_grasp", m.GraspRequest(stamp=0.0, label=OBJECT), proc)
+        assert r is not None and r.status == "succeeded", r
+        g = r.result
+        assert isinstance(g, m.GraspGoal) and g.object_name == OBJECT
+        assert np.linalg.norm(g.position - view.gt.position_base) < 0.02
+        assert g.approach == view.gt.approach and g.mass > 0.0
+        # ... and of its track
+        o = objects.get()
+        tid = int(o.ids[list(o.labels).index(OBJECT)])
+        _, r = _result(bus, "estimate_grasp", m.GraspRequest(stamp=0.0, track_id=tid), proc)
+        assert r.status == "succeeded", r
+        # 4. an unknown class or track is rejected at once
+        h, _ = _result(bus, "estimate_grasp", m.GraspRequest(stamp=0.0, label="teapot"), proc)
+        assert not h.accepted and "unknown class" in h.reason
+        h, _ = _result(bus, "estimate_grasp", m.GraspRequest(stamp=0.0, track_id=9999), proc)
+        assert not h.accepted and "unknown track" in h.reason
+        # 5. bad frames: a reason, no crash
+        bad = _frame(view)
+        for frame, why in (
+            (m.RgbdImage(**{**bad.__dict__, "depth": np.zeros_like(view.depth)}), "empty depth"),
+            (m.RgbdImage(**{**bad.__dict__, "K": np.diag([1e6, 1e6, 1.0])}), "absurd focal"),
+            (m.RgbdImage(**{**bad.__dict__, "rgb": np.full_like(view.rgb, 90),
+                            "depth": np.full_like(view.depth, 2.0)}), "not in view"),
+        ):  # fmt: skip
+            robot.frame = frame
+            time.sleep(0.5)
+            _, r = _result(bus, "estimate_grasp", m.GraspRequest(stamp=0.0, label=OBJECT), proc)
+            assert r is not None and r.status == "failed" and why in r.reason, (why, r)
+        # 6. the camera stops: goals are rejected with the reason, the node lives on
+        robot.cameras_on = False
+        time.sleep(1.5)
+        h, _ = _result(bus, "estimate_grasp", m.GraspRequest(stamp=0.0, label=OBJECT), proc)
+        assert not h.accepted and "no camera frame" in h.reason
+        assert proc.proc.poll() is None
+        assert any("camera silent" in line for line in proc.lines)
+    finally:
+        robot.stop()

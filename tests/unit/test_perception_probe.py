@@ -1,0 +1,87 @@
+"""Perception's grasp pipeline on rendered probing views against the harness's ground truth.
+
+One object of every catalogue category, on the floor and on a table (seed 0 of the
+full-stack grasp trials' scenes), seen in its probing posture (paper Fig. 5): the gripper
+camera looking down, or the front camera for a tall table object. The box is cut from the
+ground-truth segmentation (a perfect detector), so the test measures the grasp pipeline
+alone. The estimate must agree with ``grasp_from_poses`` (the harness's stand-in for
+perception): same approach, grasp point within 1.5 cm, yaw within 15 deg modulo the
+object's symmetry, width within 1.5 cm, hang within 1 cm, and the bowl's tilt.
+
+Known, documented disagreements are not tested here (docs/perception_grasp.md): the marker
+is grasped at its middle (the harness takes the centre of its longer part, 15.5 mm off)
+and the padlock across its body's 47 mm side, clear of the shackle (the harness closes
+across the 40 mm side, one finger landing on the shackle).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")  # before mujoco is imported
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+from quadmanip.services.perception.grasp_pose import estimate_grasp_from_depth  # noqa: E402
+from quadmanip.sim.world.objects import load_catalogue  # noqa: E402
+from quadmanip.testbench.probe_accuracy import yaw_period  # noqa: E402
+from quadmanip.testbench.probe_views import render_probe_view  # noqa: E402
+
+pytestmark = pytest.mark.unit
+
+POS_TOL = 0.015  # m
+YAW_TOL = math.radians(15.0)
+WIDTH_TOL = 0.015  # m
+HANG_TOL = 0.01  # m
+
+# (object, category): one per catalogue category, plus the bowl for the wall pinch
+OBJECTS = [
+    "brick",  # shape
+    "sugar_box",  # food: vertical on the floor, horizontal (front camera) on a table
+    "screwdriver",  # tool
+    "spoon",  # orientation
+    "toy_gun",  # task
+    "mug",  # kitchen
+    "bowl",  # kitchen: a flared wall, pinched with the tool tilted
+]
+
+
+@pytest.fixture(scope="module")
+def cat():
+    return load_catalogue()
+
+
+def test_objects_cover_every_category(cat):
+    assert {cat.objects[n].category for n in OBJECTS} == set(cat.categories)
+
+
+@pytest.mark.parametrize("where", ["floor", "table"])
+@pytest.mark.parametrize("name", OBJECTS)
+def test_grasp_matches_ground_truth(cat, name, where):
+    view = render_probe_view(name, where, 0, catalogue=cat)
+    assert view.box is not None, "object not in view"
+    est = estimate_grasp_from_depth(
+        view.depth,
+        view.box,
+        view.K,
+        view.cam_position,
+        view.cam_orientation,
+        name,
+        cat,
+        view.probing,
+        where,
+    )
+    gt = view.gt
+    assert est.ok, est.reason
+    assert est.approach == gt.approach
+    err = np.linalg.norm(est.position - gt.position_base)
+    assert err < POS_TOL, f"grasp point {err * 1000:.1f} mm off"
+    period = yaw_period(cat.objects[name]) if gt.approach == "vertical" else math.pi
+    if period is not None:
+        dyaw = abs((est.yaw - gt.yaw + period / 2) % period - period / 2)
+        assert dyaw < YAW_TOL, f"yaw {math.degrees(dyaw):.1f} deg off"
+    assert est.width == pytest.approx(gt.width, abs=WIDTH_TOL)
+    assert est.hang == pytest.approx(gt.hang, abs=HANG_TOL)
+    assert est.tilt == pytest.approx(gt.tilt, abs=0.1)  # 0 except the bowl's 0.64 rad
+    assert est.mass == pytest.approx(cat.objects[name].mass)
