@@ -43,6 +43,9 @@ class FrameConfig:
 
     stride: int = 2  # px: every second row and column of a box (a quarter of the points)
     max_range: float = 3.5  # m: returns farther than this are not used to place objects
+    # m: nothing nearer the camera is an object to report: the gripper camera sees its
+    # own fingers 5-10 cm away (objects at the probing posture are 25 cm or more away)
+    min_range: float = 0.15
     min_points: int = 12  # object points needed to place a detection
     min_valid_depth: float = 0.01  # share of pixels with a return below which depth is "empty"
 
@@ -57,6 +60,7 @@ class Located:
     centroid_odom: np.ndarray
     extent: np.ndarray
     distance: float
+    camera_range: float = math.inf  # m from the camera to the centroid
 
 
 def frame_problem(img: m.RgbdImage, cfg: FrameConfig | None = None) -> str:
@@ -154,6 +158,7 @@ def locate_detection(
         centroid_odom=c_odom,
         extent=np.maximum(hi - lo, 0.0),
         distance=float(math.hypot(c_base[0], c_base[1])),
+        camera_range=float(np.linalg.norm(c_base - np.asarray(img.position, float))),
     )
 
 

@@ -215,6 +215,12 @@ class PerceptionNode(Service):
             loc = locate_detection(img, d, *base_pose, cfg.frames, cfg.grasp.filter)
             if loc is not None:
                 located.append(loc)
+        # the robot's own fingers in the gripper camera are not objects
+        near = {id(x.detection) for x in located if x.camera_range < cfg.frames.min_range}
+        if near:
+            dets = [d for d in dets if id(d) not in near]
+            candidates = [d for d in candidates if id(d) not in near]
+            located = [x for x in located if id(x.detection) not in near]
         self.counters["frames"] += 1
         self.counters["detections"] += len(dets)
         if base is not None:
