@@ -20,7 +20,12 @@ from typing import Any
 
 import cv2
 import numpy as np
-from quadmanip.services.perception.detector import Detection, Detector, DetectorConfig
+from quadmanip.services.perception.detector import (
+    Detection,
+    Detector,
+    DetectorConfig,
+    reported,
+)
 
 __all__ = ["EVAL_MAX_DETECTIONS", "EVAL_THRESHOLD", "draw_detections", "evaluate", "main"]
 
@@ -102,7 +107,10 @@ def evaluate(
                 }
             )
         if sheet is not None and len(tiles) < 24 and truth.get(im["id"]):
-            tiles.append(draw_detections(rgb, dets, truth.get(im["id"])))
+            # what the service reports (not the ranked list COCO scores)
+            rc = DetectorConfig()
+            shown = reported(dets, rc.report_threshold, rc.overlap_iou)
+            tiles.append(draw_detections(rgb, shown, truth.get(im["id"])))
         if (n + 1) % 200 == 0:
             print(f"[evaluate] {n + 1}/{len(images)} frames", flush=True)
     gt_path = data / "annotations.json"

@@ -23,8 +23,12 @@ class NodeConfig:
     odom_max_skew: float = 0.1  # s: odometry further than this from a frame is not used
     grasp_timeout: float = 3.0  # s (wall) an action waits for a fresh frame, arm still
     arm_still: float = 0.05  # rad/s: every arm joint slower than this counts as still
-    max_reach: float = 0.75  # m from the base: a farther target is "too far"
+    max_reach: float = 0.75  # m from the base: a farther target is "too far" ...
+    # ... but the front camera probes from farther back: it sits below a table top, so it
+    # sees a table object from about 1 m (the task steps in to grasp)
+    max_side_probe: float = 1.3
     track_gate: float = 0.2  # m: a detection this near a requested track is that track
+    view_frames: int = 5  # fresh frames per camera a grasp request looks at for its target
 
 
 @dataclass(frozen=True)

@@ -369,10 +369,6 @@ class PerceptionNode(Service):
         goal: m.GraspRequest = handle.goal  # type: ignore[assignment]
         cfg: PerceptionConfig = self.config
         cams = (goal.camera,) if goal.camera else tuple(CAMERA_TOPICS)
-        frames = self._fresh(cams, self._robot_now(), handle)
-        handle.check_cancel()
-        if not frames:
-            raise ActionFailed("not in view: no fresh frame with the arm still")
         near = None
         label = goal.label
         if goal.track_id >= 0:
@@ -381,30 +377,44 @@ class PerceptionNode(Service):
             if tr is None:
                 raise ActionFailed(f"not in view: track {goal.track_id} was forgotten")
             near, label = np.asarray(tr.centroid), tr.class_name
-        choices = []
-        reasons = []
-        for p in frames:
-            if p.problem:
-                reasons.append(f"{p.img.camera}: bad frame: {p.problem}")
-                continue
-            if near is not None and p.base is None:
-                reasons.append(f"{p.img.camera}: no odometry to match the track")
-                continue
-            # a named class may be taken from every candidate; an unnamed target only
-            # from what perception reports
-            pool = p.detections if label else p.reported
-            det, loc, why = pick_target(
-                p.located, pool, p.img.depth.shape, label, near, cfg.node.track_gate
-            )
-            if det is None:
-                reasons.append(f"{p.img.camera}: {why}")
-                continue
-            area = (det.box[2] - det.box[0]) * (det.box[3] - det.box[1])
-            choices.append((area, p, det, loc))
+        # a target missed in one frame (a detector's miss, the camera still settling) is
+        # looked for in the next ones, up to ``view_frames`` per camera
+        after = self._robot_now()
+        choices: list[tuple[float, Processed, Detection, Located | None]] = []
+        reasons: list[str] = []
+        for _ in range(cfg.node.view_frames):
+            frames = self._fresh(cams, after, handle)
+            handle.check_cancel()
+            if not frames:
+                reasons.append("no fresh frame with the arm still")
+                break
+            after = max(p.img.stamp for p in frames)
+            reasons = []
+            for p in frames:
+                if p.problem:
+                    reasons.append(f"{p.img.camera}: bad frame: {p.problem}")
+                    continue
+                if near is not None and p.base is None:
+                    reasons.append(f"{p.img.camera}: no odometry to match the track")
+                    continue
+                # a named class may be taken from every candidate; an unnamed target only
+                # from what perception reports
+                pool = p.detections if label else p.reported
+                det, loc, why = pick_target(
+                    p.located, pool, p.img.depth.shape, label, near, cfg.node.track_gate
+                )
+                if det is None:
+                    reasons.append(f"{p.img.camera}: {why}")
+                    continue
+                area = (det.box[2] - det.box[0]) * (det.box[3] - det.box[1])
+                choices.append((area, p, det, loc))
+            if choices:
+                break
         if not choices:
-            raise ActionFailed("; ".join(reasons))
+            raise ActionFailed("; ".join(reasons) or "not in view")
         _, p, det, loc = max(choices, key=lambda c: c[0])
-        reach = goal.max_distance or cfg.node.max_reach
+        side = p.img.camera == FRONT_CAMERA  # a side probe looks from farther back
+        reach = goal.max_distance or (cfg.node.max_side_probe if side else cfg.node.max_reach)
         if loc is not None and loc.distance > reach:
             raise ActionFailed(f"too far: {det.label} {loc.distance:.2f} m away (reach {reach} m)")
         img = p.img
