@@ -161,6 +161,8 @@ def run_perception_grasp_trial(
                     s.face(target, heading, float(np.clip(goal.position[0]
                                                           - SIDE_PROBE_BACK_M, *AHEAD)))  # fmt: skip
                     goal = carried_over(goal, seen_from, odom.get())
+                    # what stepping in (odometry's drift) added to the estimate's error
+                    tries[-1]["pos_err_stepped_m"] = grasp_error(goal, truth())[0]
                 out = s.act("grasp", goal)
                 if out.accepted or attempt == 2:
                     break

@@ -30,7 +30,7 @@ import math
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from quadmanip.common import messages as m
@@ -43,6 +43,7 @@ from quadmanip.common.service import Input, Output, Service, run_service
 from quadmanip.services.perception.config import PerceptionConfig
 from quadmanip.services.perception.detector import Detection, Detector, reported
 from quadmanip.services.perception.frames import (
+    TABLE_MIN_HEIGHT,
     Located,
     camera_in_odom,
     frame_problem,
@@ -51,7 +52,7 @@ from quadmanip.services.perception.frames import (
     pick_target,
     surface_of,
 )
-from quadmanip.services.perception.grasp_pose import estimate_grasp_from_depth
+from quadmanip.services.perception.grasp_pose import GraspEstimate, estimate_grasp_from_depth
 from quadmanip.services.perception.handle_locator import locate_handle
 from quadmanip.services.perception.object_memory import CameraView, ObjectMemory, Observation
 
@@ -211,16 +212,22 @@ class PerceptionNode(Service):
             img = level_frame(img, base[1])
             base = base_pose = (base[0], quat_from_yaw(yaw_from_quat(base[1])))
         located = []
+        placed: dict[tuple[float, ...], Located | None] = {}
         for d in candidates:  # every candidate: a grasp request may name a runner-up class
-            loc = locate_detection(img, d, *base_pose, cfg.frames, cfg.grasp.filter)
+            # one object's class peaks share the box (the size head is class-agnostic):
+            # place each box once
+            if d.box not in placed:
+                placed[d.box] = locate_detection(img, d, *base_pose, cfg.frames, cfg.grasp.filter)
+            loc = placed[d.box]
             if loc is not None:
-                located.append(loc)
-        # the robot's own fingers in the gripper camera are not objects
+                located.append(replace(loc, detection=d))
+        # the robot's own fingers in the gripper camera are not objects (too near), nor is
+        # its trunk (its points fall in the filter's self box: nothing is left to place)
         near = {id(x.detection) for x in located if x.camera_range < cfg.frames.min_range}
-        if near:
-            dets = [d for d in dets if id(d) not in near]
-            candidates = [d for d in candidates if id(d) not in near]
-            located = [x for x in located if id(x.detection) not in near]
+        located = [x for x in located if id(x.detection) not in near]
+        placed_ids = {id(x.detection) for x in located}
+        dets = [d for d in dets if id(d) in placed_ids]
+        candidates = [d for d in candidates if id(d) in placed_ids]
         self.counters["frames"] += 1
         self.counters["detections"] += len(dets)
         if base is not None:
@@ -418,18 +425,31 @@ class PerceptionNode(Service):
         if loc is not None and loc.distance > reach:
             raise ActionFailed(f"too far: {det.label} {loc.distance:.2f} m away (reach {reach} m)")
         img = p.img
-        est = estimate_grasp_from_depth(
-            img.depth,
-            det.box,
-            img.K,
-            img.position,
-            img.orientation,
-            det.label,
-            self.catalogue,
-            probing="vertical" if img.camera == GRIPPER_CAMERA else "horizontal",
-            where=surface_of(loc, p.base),
-            cfg=cfg.grasp,
-        )
+
+        def estimate(where: str) -> GraspEstimate:
+            return estimate_grasp_from_depth(
+                img.depth,
+                det.box,
+                img.K,
+                img.position,
+                img.orientation,
+                det.label,
+                self.catalogue,
+                probing="vertical" if img.camera == GRIPPER_CAMERA else "horizontal",
+                where=where,
+                cfg=cfg.grasp,
+            )
+
+        # Floor or table decides 4.3's probing direction. The supporting plane the filter
+        # found says which (odom z is the height above the floor the robot stands on);
+        # without it, the object's placement (a tall object seen from above looks high).
+        est = estimate("floor")
+        if math.isfinite(est.surface_height) and p.base is not None:
+            where = "table" if p.base[0][2] + est.surface_height > TABLE_MIN_HEIGHT else "floor"
+        else:
+            where = surface_of(loc, p.base)
+        if where == "table":
+            est = estimate("table")
         if not est.ok:
             raise ActionFailed(f"{est.reason}: {det.label} in {img.camera}")
         return m.GraspGoal(

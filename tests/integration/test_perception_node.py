@@ -20,7 +20,7 @@ from quadmanip.testbench.probe_views import render_probe_view
 
 pytestmark = pytest.mark.integration
 
-OBJECT, WHERE = "sugar_box", "floor"
+OBJECT, WHERE = "baseball", "floor"
 
 
 def _wait(cond: Callable[[], bool], timeout: float, what: str, proc) -> None:
