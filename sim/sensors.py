@@ -340,18 +340,15 @@ class RgbdRenderer:
         finally:
             for f in flags:
                 self._scene.flags[f] = 0
-        # with IDCOLOR each scene geom is drawn in the colour of its index + 1
+        # with IDCOLOR each scene geom is drawn in the colour of its segid + 1 (0: none)
         idx = rgb[..., 0].astype(np.int64) + (rgb[..., 1].astype(np.int64) << 8)
         idx += rgb[..., 2].astype(np.int64) << 16
-        idx -= 1
         n = self._scene.ngeom
-        lut = np.full(n + 1, -1, np.int64)
-        for i in range(n):
-            g = self._scene.geoms[i]
-            if g.objtype == mujoco.mjtObj.mjOBJ_GEOM:
-                lut[i] = g.objid
-        idx[(idx < 0) | (idx >= n)] = n
-        return np.ascontiguousarray(np.flipud(lut[idx]))
+        lut = np.full(n + 2, -1, np.int64)
+        for g in self._scene.geoms[:n]:
+            if 0 <= g.segid <= n and g.objtype == mujoco.mjtObj.mjOBJ_GEOM:
+                lut[g.segid + 1] = g.objid
+        return np.ascontiguousarray(np.flipud(lut[np.clip(idx, 0, n + 1)]))
 
     def _linearize(self, zbuf: np.ndarray, cfg: CameraConfig) -> np.ndarray:
         """Reverse-Z buffer (1 at near, 0 at far) → metric depth, 0 where no return."""

@@ -106,40 +106,8 @@ def _stand(world: World, data: mujoco.MjData, arm_q: np.ndarray) -> None:
 
 
 def _segment(renderer: RgbdRenderer, data: mujoco.MjData, camera: str) -> np.ndarray:
-    """Geom id per pixel (-1: none) from a segmentation pass of ``renderer``'s camera.
-
-    The renderer's own ``render_segmentation`` when it has one, else the same pass done
-    here with its GL context, scene and camera (test-only code)."""
-    own = getattr(renderer, "render_segmentation", None)
-    if own is not None:
-        return np.asarray(own(data, camera))
-    cfg = renderer.cameras[camera]
-    r = renderer
-    r._gl.make_current()
-    r._cam.fixedcamid = r._cam_ids[camera]
-    mujoco.mjv_updateScene(
-        r.model, data, r._opt, r._pert, r._cam, mujoco.mjtCatBit.mjCAT_ALL, r._scene
-    )
-    flags = r._scene.flags
-    old = (flags[mujoco.mjtRndFlag.mjRND_SEGMENT], flags[mujoco.mjtRndFlag.mjRND_IDCOLOR])
-    flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = 1
-    flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = 1
-    try:
-        rect = mujoco.MjrRect(0, 0, cfg.width, cfg.height)
-        mujoco.mjr_render(rect, r._scene, r._ctx)
-        rgb = np.empty((cfg.height, cfg.width, 3), np.uint8)
-        mujoco.mjr_readPixels(rgb, None, rect, r._ctx)
-    finally:
-        flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = old[0]
-        flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = old[1]
-    seg = rgb.astype(np.int64)
-    seg = seg[..., 0] + (seg[..., 1] << 8) + (seg[..., 2] << 16)
-    n = r._scene.ngeom
-    lut = np.full(n + 2, -1, np.int64)
-    for g in r._scene.geoms[:n]:
-        if g.segid >= 0 and g.objtype == mujoco.mjtObj.mjOBJ_GEOM:
-            lut[g.segid + 1] = g.objid
-    return np.flipud(lut[np.clip(seg, 0, n + 1)])
+    """Geom id per pixel (-1: none): the renderer's segmentation pass (labels for tests)."""
+    return renderer.render_segmentation(data, camera)
 
 
 def _box(mask: np.ndarray) -> tuple[int, int, int, int] | None:
