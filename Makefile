@@ -69,6 +69,7 @@ bench: $(STAMP)
 	-MUJOCO_GL=$${MUJOCO_GL:-egl} $(VENV)/bin/quadmanip bench sim --json bench-results/sim.json
 	-MUJOCO_GL=$${MUJOCO_GL:-egl} $(VENV)/bin/quadmanip bench locomotion --json bench-results/locomotion.json
 	-MUJOCO_GL=$${MUJOCO_GL:-egl} $(VENV)/bin/quadmanip bench manipulation --json bench-results/manipulation.json
+	-MUJOCO_GL=$${MUJOCO_GL:-egl} $(VENV)/bin/quadmanip bench perception --json bench-results/perception.json --parts detect,probe
 
 clean:
 	rm -rf $(VENV) build *.egg-info bench-results demo-output

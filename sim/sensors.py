@@ -282,9 +282,8 @@ class RgbdRenderer:
         p = r_wb.T @ (data.cam_xpos[cid] - p_wb)
         return p, mat_to_quat(r_wb.T @ r_wc)
 
-    def render(self, data: mujoco.MjData, camera: str) -> RgbdFrame:
-        """One render pass → colour and metric depth of ``camera`` (kinematics current)."""
-        cfg = self.cameras[camera]
+    def _update_scene(self, data: mujoco.MjData, camera: str) -> CameraConfig:
+        """Make the GL context current and fill the scene as ``camera`` sees ``data``."""
         self._gl.make_current()
         self._cam.fixedcamid = self._cam_ids[camera]
         mujoco.mjv_updateScene(
@@ -296,6 +295,11 @@ class RgbdRenderer:
             mujoco.mjtCatBit.mjCAT_ALL,
             self._scene,
         )
+        return self.cameras[camera]
+
+    def render(self, data: mujoco.MjData, camera: str) -> RgbdFrame:
+        """One render pass → colour and metric depth of ``camera`` (kinematics current)."""
+        cfg = self._update_scene(data, camera)
         rect = mujoco.MjrRect(0, 0, cfg.width, cfg.height)
         mujoco.mjr_render(rect, self._scene, self._ctx)
         rgb, zbuf = self._buffers[camera]
@@ -317,18 +321,7 @@ class RgbdRenderer:
         Labels for offline datasets and tests only: a real camera has no such image, and
         the sim never publishes it.
         """
-        cfg = self.cameras[camera]
-        self._gl.make_current()
-        self._cam.fixedcamid = self._cam_ids[camera]
-        mujoco.mjv_updateScene(
-            self.model,
-            data,
-            self._opt,
-            self._pert,
-            self._cam,
-            mujoco.mjtCatBit.mjCAT_ALL,
-            self._scene,
-        )
+        cfg = self._update_scene(data, camera)
         flags = (mujoco.mjtRndFlag.mjRND_SEGMENT, mujoco.mjtRndFlag.mjRND_IDCOLOR)
         for f in flags:
             self._scene.flags[f] = 1
