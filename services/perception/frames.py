@@ -162,15 +162,20 @@ def locate_detection(
     )
 
 
-def surface_of(loc: Located | None, base: tuple[np.ndarray, np.ndarray] | None) -> str:
-    """``table`` when the object's bottom is well above the floor, else ``floor``.
+def surface_of(
+    loc: Located | None, base: tuple[np.ndarray, np.ndarray] | None, class_height: float = 0.0
+) -> str:
+    """``table`` when the object rests well above the floor, else ``floor``.
 
     The odom frame's z is the height above the floor the robot stands on (the odometry
-    starts on it), so without odometry (``base`` None) or a placement it answers ``floor``.
+    starts on it). What a camera sees of an object is mostly its top (its bottom is hidden),
+    so the object's resting height is its top less its ``class_height`` (the catalogue's
+    model of the class). Without odometry (``base`` None) or a placement: ``floor``.
     """
     if loc is None or base is None:
         return "floor"
-    bottom = float(loc.centroid_odom[2] - 0.5 * loc.extent[2])
+    top = float(loc.centroid_odom[2] + 0.5 * loc.extent[2])
+    bottom = top - class_height if class_height > 0.0 else top - float(loc.extent[2])
     return "table" if bottom > TABLE_MIN_HEIGHT else "floor"
 
 

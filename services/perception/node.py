@@ -43,7 +43,6 @@ from quadmanip.common.service import Input, Output, Service, run_service
 from quadmanip.services.perception.config import PerceptionConfig
 from quadmanip.services.perception.detector import Detection, Detector, reported
 from quadmanip.services.perception.frames import (
-    TABLE_MIN_HEIGHT,
     Located,
     camera_in_odom,
     frame_problem,
@@ -440,16 +439,11 @@ class PerceptionNode(Service):
                 cfg=cfg.grasp,
             )
 
-        # Floor or table decides 4.3's probing direction. The supporting plane the filter
-        # found says which (odom z is the height above the floor the robot stands on);
-        # without it, the object's placement (a tall object seen from above looks high).
-        est = estimate("floor")
-        if math.isfinite(est.surface_height) and p.base is not None:
-            where = "table" if p.base[0][2] + est.surface_height > TABLE_MIN_HEIGHT else "floor"
-        else:
-            where = surface_of(loc, p.base)
-        if where == "table":
-            est = estimate("table")
+        # floor or table decides 4.3's probing direction: from the object's top less the
+        # class's height (a tall box seen from above would otherwise look like a table's)
+        spec = self.catalogue.objects.get(det.label)
+        where = surface_of(loc, p.base, float(spec.size[2]) if spec is not None else 0.0)
+        est = estimate(where)
         if not est.ok:
             raise ActionFailed(f"{est.reason}: {det.label} in {img.camera}")
         return m.GraspGoal(

@@ -107,6 +107,11 @@ def test_surface_and_target_choice() -> None:
     base = (np.zeros(3), np.array([1.0, 0, 0, 0]))
     assert surface_of(table, base) == "table" and surface_of(floor, base) == "floor"
     assert surface_of(table, None) == "floor"
+    # a 21 cm box on the floor seen from above: only its top face (z 0.21) is placed
+    tall_top = Located(d_box, np.array([2, 1, 0.205]), np.array([2, 1, 0.205]),
+                       np.array([0.16, 0.06, 0.01]), 0.4)  # fmt: skip
+    assert surface_of(tall_top, base, class_height=0.21) == "floor"
+    assert surface_of(tall_top, base) == "table"  # what the placement alone would say
     dets = [d_cup, d_cup2, d_box]
     locs = [table, floor]
     got, _, _ = pick_target(locs, dets, (240, 320), label="cup")
