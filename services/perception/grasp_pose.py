@@ -475,7 +475,11 @@ def _vertical(
         # Departure from 4.3: a round top (a ball) fails the normal test, yet the fingers
         # close around anything narrower than their opening from above (the ground-truth
         # trials grasp balls on tables vertically); the test sends only wider objects aside
-        narrow = float(min(np.ptp(obj[:, 0]), np.ptp(obj[:, 1]))) <= cfg.max_width
+        # narrow across its principal axes (a spoon lying diagonally is 14 cm along each
+        # base axis, 4 cm across itself)
+        xy = obj[:, :2] - obj[:, :2].mean(axis=0)
+        axes_xy = np.linalg.svd(xy, full_matrices=False)[2]
+        narrow = float(np.ptp(xy @ axes_xy.T, axis=0).min()) <= cfg.max_width
         if (not flat and not narrow) or height > cfg.tall_height:
             return _reject(name, "probe horizontally", mass, n, probe="horizontal", **extra)
     cc = cfg.candidates
