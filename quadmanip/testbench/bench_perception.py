@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from quadmanip.common import messages as m
 from quadmanip.services.perception.config import PerceptionConfig
 from quadmanip.services.perception.detector import Detector, weights_path
 from quadmanip.services.perception.grasp_pose import estimate_grasp_from_depth
@@ -96,8 +97,6 @@ def bench_probe(
                 if not est.ok:
                     row["reason"] = est.reason
                 else:
-                    from quadmanip.common import messages as m
-
                     goal = m.GraspGoal(
                         stamp=0.0, position=est.position, yaw=est.yaw, width=est.width
                     )

@@ -105,11 +105,6 @@ def _stand(world: World, data: mujoco.MjData, arm_q: np.ndarray) -> None:
     mujoco.mj_forward(m, data)
 
 
-def _segment(renderer: RgbdRenderer, data: mujoco.MjData, camera: str) -> np.ndarray:
-    """Geom id per pixel (-1: none): the renderer's segmentation pass (labels for tests)."""
-    return renderer.render_segmentation(data, camera)
-
-
 def _box(mask: np.ndarray) -> tuple[int, int, int, int] | None:
     rows, cols = np.any(mask, axis=1), np.any(mask, axis=0)
     if not rows.any():
@@ -146,7 +141,7 @@ def render_probe_view(
     renderer = RgbdRenderer(world.model, {camera: camera_config or CameraConfig()})
     try:
         frame = renderer.render(data, camera)
-        seg = _segment(renderer, data, camera)
+        seg = renderer.render_segmentation(data, camera)
     finally:
         renderer.close()
     bid = world.object_body_ids[name]
