@@ -63,12 +63,15 @@ class RawSubscriber:
             _participant = DomainParticipant(_initialised[0])
         self._take = ddspy_take
         self._on_bytes = on_bytes
+        self._closed = False
         self._topic = Topic(_participant, topic, msg_type)
         self._reader = DataReader(
             _participant, self._topic, listener=Listener(on_data_available=self._on_data)
         )
 
     def _on_data(self, reader: Any) -> None:
+        if self._closed or reader is None:  # closing, or the reader is already deleted
+            return
         ret = self._take(reader._ref, 8)
         if isinstance(ret, int):  # a DDS error code
             return
@@ -77,7 +80,17 @@ class RawSubscriber:
                 self._on_bytes(data)
 
     def close(self) -> None:
-        self._reader = None
+        """Delete the reader now, in this thread. Only dropping the reference let the
+        last one go in the listener's own callback (cyclonedds holds the reader there),
+        whose ``dds_delete`` then waited for that callback to end: a deadlock."""
+        from cyclonedds.core import Entity
+
+        reader, self._reader = self._reader, None
+        if reader is None:
+            return
+        self._closed = True
+        Entity._entities.pop(reader._ref, None)  # the object's own __del__ is a no-op now
+        reader._delete(reader._ref)  # waits for a running callback (ctypes frees the GIL)
 
 
 def raw_subscriber(topic: str, msg_type: type, on_bytes: Callable[[bytes], None]) -> RawSubscriber:

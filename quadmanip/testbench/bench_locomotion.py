@@ -39,6 +39,7 @@ import numpy as np
 from quadmanip.common.rotations import yaw_from_quat
 from quadmanip.services.locomotion.controller import LocomotionController, load_locomotion_config
 from quadmanip.services.locomotion.convex_mpc import ConvexMpc
+from quadmanip.testbench.unitree_sim_robot import SMALL_MACHINE_RTF
 
 SEQUENCE: list[tuple[float, float, float]] = [
     (0.5, 0.0, 0.0),
@@ -390,7 +391,9 @@ def run_zenoh(segment_s: float = SEGMENT_S) -> dict[str, Any]:
 
 
 def run_adapter(
-    segment_s: float = SEGMENT_S, robot_rtf: float = 0.5, locomotion_args: tuple[str, ...] = ()
+    segment_s: float = SEGMENT_S,
+    robot_rtf: float = SMALL_MACHINE_RTF,
+    locomotion_args: tuple[str, ...] = (),
 ) -> dict[str, Any]:
     """Router + the simulated Unitree robot (DDS) + the adapter + locomotion processes;
     this process commands and judges from the robot's ground truth (docs/hardware.md).
@@ -597,7 +600,11 @@ def main(argv: list[str]) -> int:
         "beside the same sequence over the sim directly (docs/hardware.md)",
     )
     ap.add_argument(
-        "--robot-rtf", type=float, default=0.5, help="real-time factor of the simulated robot"
+        "--robot-rtf",
+        type=float,
+        default=SMALL_MACHINE_RTF,
+        help=f"real-time factor of the simulated robot (default {SMALL_MACHINE_RTF}, what "
+        "2 cores hold for it, the adapter and locomotion)",
     )
     args = ap.parse_args(argv)
     seg = 1.5 if args.quick else SEGMENT_S

@@ -40,7 +40,7 @@ from quadmanip.common.bus import Bus, load_bus_config
 from quadmanip.common.config import load_config
 from quadmanip.common.joint_layout import ARM_JOINTS, JOINTS, N_LEG_JOINTS
 from quadmanip.common.log import configure_logging, get_logger
-from quadmanip.common.scheduling import SchedulingConfig, apply_scheduling
+from quadmanip.common.scheduling import SchedulingConfig, ThreadScheduler
 from quadmanip.sim.engine import SimConfig, SimEngine
 
 __all__ = ["SDK_LEGS", "sdk_slot_joints", "main"]
@@ -52,6 +52,12 @@ SDK_LEGS = ("FR", "FL", "RR", "RL")
 SDK_JOINT_KINDS = ("abad", "hip", "knee")
 """Unitree's hip, thigh, calf, named as in our description."""
 N_SLOTS = 20
+# The real-time factor that a 2-core machine holds for this robot's physics, the adapter,
+# locomotion and a Zenoh router together without locomotion's deadline monitor degrading
+# (measured with `quadmanip bench locomotion --over unitree-sim`: at 0.5 about 10 % of
+# answers came later than 1.5 of the robot's ticks in every window; at 0.3 one run of three
+# still had degraded windows; at 0.25 none of three). Benchmarks and tests use this pace.
+SMALL_MACHINE_RTF = 0.25
 ARM_GRIPPER_SLOT = 4
 
 
@@ -223,7 +229,11 @@ class SimulatedUnitreeRobot:
         self._arm_pub.Write(a)
 
     # ------------------------------------------------------------------ loop
-    def run(self, stop: threading.Event) -> None:
+    def run(self, stop: threading.Event, scheduler: ThreadScheduler | None = None) -> None:
+        """Step the physics at the real-time factor until ``stop``; ``scheduler`` gives
+        threads started later the physics loop's priority, as the services' heartbeat
+        does (a command reader at normal priority competes with three real-time
+        processes on a small computer)."""
         eng = self.engine
         out = eng.observe(sensors=False)
         period = eng.control_dt / max(self.args.realtime_factor, 1e-3)
@@ -262,6 +272,8 @@ class SimulatedUnitreeRobot:
             elif now - target > 0.1:  # cannot keep up: restart the schedule, no burst
                 slips += 1
                 t_ref, tick_ref = now, eng.tick
+            if scheduler is not None and eng.tick % 500 == 0:
+                scheduler.apply()
             if now - last_log >= 5.0:
                 log.info(
                     "running",
@@ -313,11 +325,14 @@ def main(argv: list[str] | None = None) -> int:
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
     robot = SimulatedUnitreeRobot(args)
+    scheduler = None
     if not args.no_realtime_priority:  # like the sim's physics loop in realtime mode
-        res = apply_scheduling(SchedulingConfig(policy="fifo", priority=70, fallback_nice=-5))
-        log.info("scheduling", applied=res.applied, reasons="; ".join(res.reasons))
+        scheduler = ThreadScheduler(SchedulingConfig(policy="fifo", priority=70, fallback_nice=-5))
+        res = scheduler.apply()
+        if res is not None:
+            log.info("scheduling", applied=res.applied, reasons="; ".join(res.reasons))
     try:
-        robot.run(stop)
+        robot.run(stop, scheduler)
     finally:
         robot.close()
     return 0

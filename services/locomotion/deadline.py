@@ -18,6 +18,14 @@ sank and toppled while locomotion reported nothing). The monitor measures, per w
 A robot side that waits for every answer (the sim's lockstep mode) has no deadline: late
 answers and MPC overruns are still counted there but never degrade.
 
+The budgets are in robot time (``answer_budget`` is 1.5 control ticks). When the robot side
+runs slower than real time (a simulated robot capped at a real-time factor below 1, such
+as the simulated Unitree robot on a small computer), its ticks are that much longer on the
+wall clock, and so is the time an answer may take: the monitor measures the robot's pace
+(robot seconds per wall second, from the states' stamps and arrival times) and divides
+the wall-clock budgets by it. A real robot's pace is 1, so nothing changes there; a pace
+above 1 never shortens the budgets.
+
 Any of them beyond its limit turns the state ``degraded`` (with the reason); the
 controller then accepts only ``degraded_speed_scale`` of its velocity limits (slower
 steps need less precise timing, and a stop is short) and stands with joint-level
@@ -33,6 +41,7 @@ turns it back to ``ok``. The tripped state (safety.py) is the controller's, not 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -89,15 +98,34 @@ class DeadlineMonitor:
         self._clean_since: float | None = None
         self.answer_p99 = 0.0
         self._scale = 1.0  # the tightest speed scale of the current degraded episode
+        self.pace = 1.0  # robot seconds per wall second (module doc), at most 1
+        self._pace_anchor: tuple[float, float] | None = None  # (robot t, wall) of the span
+        self._pace_unknown = False  # arrival times are given but no span has ended yet
 
-    def tick(self, t: float, tick: int, answer_s: float, mpc_s: float | None = None) -> None:
+    def _budget(self, seconds: float) -> float:
+        """A wall-clock budget for ``seconds`` of robot time at the robot's pace."""
+        return seconds / self.pace
+
+    def tick(
+        self,
+        t: float,
+        tick: int,
+        answer_s: float,
+        mpc_s: float | None = None,
+        arrived: float | None = None,
+    ) -> None:
         """One answered LowState: its robot time, tick number, the wall time from its
-        arrival to the answer, and the MPC step time if the MPC ran in it."""
+        arrival to the answer, the MPC step time if the MPC ran in it, and the wall time
+        (any monotonic clock, seconds) at which it arrived, for the robot's pace."""
         if self._t0 is None:
             self._t0 = t
+        if arrived is not None:
+            self._measure_pace(t, arrived)
+        # Until the first span has told the pace (50 ms), nothing is judged late.
+        budget = math.inf if self._pace_unknown else self._budget(self.p.answer_budget)
         if self._last_tick is not None and tick > self._last_tick + 1:
             gap = tick - self._last_tick - 1
-            if answer_s > self.p.answer_budget:
+            if answer_s > budget:
                 self.missed_ticks += gap
                 self._w_missed += gap
             else:
@@ -105,16 +133,31 @@ class DeadlineMonitor:
         if self._last_tick is None or tick > self._last_tick:
             self._last_tick = tick
         self._answers.append(answer_s)
-        if answer_s > self.p.answer_budget:
+        if answer_s > budget:
             self.late_answers += 1
             self._w_late += 1
-        if mpc_s is not None and mpc_s > self.p.answer_budget:
+        if mpc_s is not None and mpc_s > budget:
             self.mpc_overruns += 1
             self._w_overruns += 1
+
+    def _measure_pace(self, t: float, wall: float) -> None:
+        """Robot seconds per wall second over the last span of wall time (50 ms for the
+        first, then 0.2 s); spans restart so that the pace follows a robot that speeds up
+        or slows down."""
+        if self._pace_anchor is None or t < self._pace_anchor[0]:
+            self._pace_anchor = (t, wall)
+            self._pace_unknown = True
+            return
+        t0, w0 = self._pace_anchor
+        if wall - w0 >= (0.05 if self._pace_unknown else 0.2):
+            self.pace = float(np.clip((t - t0) / (wall - w0), 0.05, 1.0))
+            self._pace_anchor = (t, wall)
+            self._pace_unknown = False
 
     def restart(self) -> None:
         """The robot side restarted (ticks went back): start counting gaps afresh."""
         self._last_tick = None
+        self._pace_anchor = None
 
     def robot_status(self, cmd_age_p50: float, leg_timeouts: int, waits: bool = False) -> None:
         """What the robot side reported (sim/status); ``waits``: it waits for every answer."""
@@ -141,7 +184,8 @@ class DeadlineMonitor:
             problems.append(f"{self._w_missed} of {ticks} ticks missed")
         if self._w_late > p.max_late_fraction * n and not self.robot_waits:
             problems.append(
-                f"{self._w_late} of {n} answers later than {p.answer_budget * 1e3:.1f} ms "
+                f"{self._w_late} of {n} answers later than "
+                f"{self._budget(p.answer_budget) * 1e3:.1f} ms "
                 f"(p99 {self.answer_p99 * 1e3:.1f} ms)"
             )
         if self._w_overruns > p.max_mpc_overruns and not self.robot_waits:
@@ -155,7 +199,7 @@ class DeadlineMonitor:
         self._w_missed = self._w_late = self._w_overruns = self._w_timeouts = 0
         if problems:
             self._clean_since = None
-            late = self.answer_p99 > p.no_walk_late
+            late = self.answer_p99 > self._budget(p.no_walk_late)
             self._scale = min(self._scale, 0.0 if late else p.degraded_speed_scale)
             reason = "cannot keep up: " + "; ".join(problems)
             changed = self.state != "degraded"

@@ -212,7 +212,7 @@ class LocomotionNode(Service):
             ran_mpc = self.ctl.mpc_tick != mpc_before
             self.deadline.tick(
                 float(ls.stamp), int(ls.tick), answer_s,
-                self.ctl.debug.mpc_step_s if ran_mpc else None,
+                self.ctl.debug.mpc_step_s if ran_mpc else None, arrived,
             )  # fmt: skip
             self._after_tick(ls.stamp)
             if self.ctl.phase in MPC_PHASES:

@@ -92,8 +92,11 @@ DT = 0.002
 
 
 def run(mon: DeadlineMonitor, t0: float, seconds: float, answer_s: float = 0.0005,
-        skip_every: int = 0, tick0: int | None = None) -> tuple[list, float, int]:  # fmt: skip
-    """Feed the monitor 500 Hz ticks; every ``skip_every``-th tick is never answered."""
+        skip_every: int = 0, tick0: int | None = None,
+        pace: float | None = None) -> tuple[list, float, int]:  # fmt: skip
+    """Feed the monitor 500 Hz ticks; every ``skip_every``-th tick is never answered.
+    ``pace``: the robot's robot seconds per wall second, told to the monitor through the
+    states' arrival times (None: no arrival times)."""
     changes = []
     n = round(seconds / DT)
     tick = round(t0 / DT) if tick0 is None else tick0
@@ -103,7 +106,8 @@ def run(mon: DeadlineMonitor, t0: float, seconds: float, answer_s: float = 0.000
         t = t0 + (k + 1) * DT
         if skip_every and k % skip_every == 0:
             continue
-        mon.tick(t, tick, answer_s, 0.001 if k % 15 == 0 else None)
+        arrived = None if pace is None else 1000.0 + t / pace
+        mon.tick(t, tick, answer_s, 0.001 if k % 15 == 0 else None, arrived)
         ch = mon.evaluate(t)
         if ch is not None:
             changes.append((round(t, 3), *ch))
@@ -163,6 +167,26 @@ def test_late_answers_degrade_only_when_the_robot_does_not_wait():
     mon.robot_status(0.0, 0, waits=False)
     changes, *_ = run(mon, t, 2.0, answer_s=0.005, tick0=tick)
     assert changes[0][1] == "degraded" and "later than 3.0 ms" in changes[0][2]
+
+
+def test_budgets_are_in_robot_time_for_a_robot_slower_than_real_time():
+    # 4 ms answers: late for a real-time robot's 2 ms ticks, on time for a simulated robot
+    # running at half speed (its ticks are 4 ms apart on the wall clock).
+    slow = DeadlineMonitor(DeadlineParams(answer_budget=0.003))
+    changes, *_ = run(slow, 0.0, 3.0, answer_s=0.004, pace=0.5)
+    assert changes == [] and slow.pace == pytest.approx(0.5, rel=1e-6)
+    assert slow.late_answers == 0
+    realtime = DeadlineMonitor(DeadlineParams(answer_budget=0.003))
+    changes, *_ = run(realtime, 0.0, 3.0, answer_s=0.004, pace=1.0)
+    assert changes[0][1] == "degraded" and "later than 3.0 ms" in changes[0][2]
+    # Answers too late even at half speed still degrade, with the wall budget in the reason.
+    slow2 = DeadlineMonitor(DeadlineParams(answer_budget=0.003))
+    changes, *_ = run(slow2, 0.0, 3.0, answer_s=0.007, pace=0.5)
+    assert changes[0][1] == "degraded" and "later than 6.0 ms" in changes[-1][2] + changes[0][2]
+    # A robot faster than real time (a lockstep sim racing ahead) never shortens them.
+    fast = DeadlineMonitor(DeadlineParams(answer_budget=0.003))
+    run(fast, 0.0, 1.0, answer_s=0.002, pace=3.0)
+    assert fast.pace == 1.0 and fast.state == "ok"
 
 
 def test_robot_side_reports_degrade():
