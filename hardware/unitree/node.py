@@ -406,6 +406,9 @@ class UnitreeAdapter(Service):
                 status_t = now
 
     def teardown(self) -> None:
+        # Stop the robot's states first: their callback publishes on the bus, which closes
+        # after teardown (a state arriving then raised "Undeclared publisher").
+        self._lowstate.close()
         with self._lock:
             r = self._reading
             if r is not None:  # leave the robot damped, not holding a stale command
