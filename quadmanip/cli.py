@@ -127,6 +127,7 @@ def _cmd_up(args: argparse.Namespace, extra: list[str]) -> int:
         robot=args.robot,
         config=args.config,
         profile=args.profile,
+        restart=args.restart,
     )
 
 
@@ -248,8 +249,10 @@ def build_parser() -> argparse.ArgumentParser:
         "up",
         help="router + configured services as child processes",
         description="Start a Zenoh router and the services of configs/launch.toml as child "
-        "processes with prefixed logs. Ctrl-C/SIGTERM stops all; a child that dies stops "
-        "the rest and the exit code is 1.",
+        "processes with prefixed logs. Ctrl-C/SIGTERM stops all. A child that fails (non-zero "
+        "exit or a signal) is restarted with a growing backoff ([restart] of launch.toml); "
+        "one that fails too often, or any that dies under --restart no, stops the rest and "
+        "the exit code is 1.",
     )
     p.add_argument("--services", metavar="A,B", help="comma-separated services (overrides config)")
     p.add_argument(
@@ -267,6 +270,14 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="NAME",
         help="a [profiles.NAME] of the launch config: its services replace the list, its "
         "service_args add to the base ones (e.g. unitree-sim: Unitree adapter + simulated robot)",
+    )
+    p.add_argument(
+        "--restart",
+        choices=("no", "on-failure"),
+        default=None,
+        help="restart policy of every child, overriding launch.toml's [restart] "
+        "(on-failure: restart a child that exits non-zero or by a signal; no: any exit "
+        "stops everything)",
     )
     p.set_defaults(func=_cmd_up)
 

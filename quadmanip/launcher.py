@@ -10,9 +10,23 @@ Guarantees:
   still up) and the router last: SIGTERM, then SIGKILL to the whole group after
   ``stop_grace_s``; exit within ``stop_grace_s + 0.5`` s of SIGTERM;
 - children get ``PR_SET_PDEATHSIG`` (via ``QM_PARENT_PID``, see ``quadmanip.cli``), so even a
-  SIGKILLed launcher leaves no orphans on Linux;
-- a child that dies on its own is reported by name, the rest are stopped, and the exit code
-  is non-zero (``EXIT_CHILD_DIED``).
+  SIGKILLed launcher leaves no orphans on Linux; restarts are spawned from the same (main)
+  thread as the first start, so they get the same guarantee;
+- a child that dies on its own is handled by its restart policy (``[restart]`` of
+  ``configs/launch.toml``, like compose's ``restart:``), the router included (services
+  reconnect to a restarted router on their own):
+
+  * ``on-failure`` (default): a child that exits non-zero or is killed by a signal (SIGKILL
+    included) is restarted with the same argv and environment after a backoff that doubles
+    with each restart in the window (``backoff_s`` .. ``backoff_max_s``); what is left of its
+    old process group is SIGKILLed first. A child that exits 0 is left stopped and the rest
+    keep running (the launcher exits 0 once every child has exited 0). A child that would
+    restart more than ``max_restarts`` times within ``window_s`` makes the launcher give up:
+    it names the child, stops the rest and exits ``EXIT_CHILD_DIED``;
+  * ``no``: any exit of a child is reported by name, the rest are stopped, and the exit code
+    is non-zero (``EXIT_CHILD_DIED``).
+
+  The decision is :class:`RestartTracker`, a pure class (no processes, no clock of its own).
 """
 
 from __future__ import annotations
@@ -25,9 +39,10 @@ import subprocess
 import sys
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import TextIO
+from typing import Literal, TextIO, cast
 
 from quadmanip import services_registry
 from quadmanip.common.config import load_config
@@ -35,6 +50,145 @@ from quadmanip.common.config import load_config
 EXIT_OK = 0
 EXIT_CHILD_DIED = 1
 EXIT_USAGE = 2
+
+RestartMode = Literal["no", "on-failure"]
+RESTART_MODES: tuple[str, ...] = ("no", "on-failure")
+
+
+@dataclass(frozen=True)
+class RestartPolicy:
+    """How one child is restarted when it dies on its own (compose's ``restart:``).
+
+    ``policy``: ``"on-failure"`` restarts a child that exits non-zero or by a signal;
+    ``"no"`` never restarts (any exit stops the launcher). ``max_restarts`` restarts are
+    allowed within any ``window_s`` seconds; one more and the launcher gives up. Before the
+    n-th restart of a window the launcher waits ``backoff_s * 2**(n-1)``, at most
+    ``backoff_max_s``, so a crash loop does not spin a core.
+    """
+
+    policy: RestartMode = "on-failure"
+    max_restarts: int = 5
+    window_s: float = 60.0
+    backoff_s: float = 0.5
+    backoff_max_s: float = 5.0
+
+    def __post_init__(self) -> None:
+        if self.policy not in RESTART_MODES:
+            raise ValueError(f"restart policy must be one of {RESTART_MODES}, got {self.policy!r}")
+        if self.max_restarts < 0:
+            raise ValueError("max_restarts must be >= 0")
+        if self.window_s <= 0.0:
+            raise ValueError("window_s must be positive")
+        if not 0.0 <= self.backoff_s <= self.backoff_max_s:
+            raise ValueError("want 0 <= backoff_s <= backoff_max_s")
+
+    def backoff(self, attempt: int) -> float:
+        """Seconds to wait before restart number ``attempt`` (1-based) within the window."""
+        if attempt < 1:
+            raise ValueError("attempt is 1-based")
+        # Cap the exponent: 2**attempt for a large attempt would overflow a float.
+        return min(self.backoff_max_s, self.backoff_s * 2.0 ** min(attempt - 1, 60))
+
+
+@dataclass(frozen=True)
+class RestartOverride:
+    """``[restart.services.NAME]``: the keys it sets replace ``[restart]``'s for that child."""
+
+    policy: RestartMode | None = None
+    max_restarts: int | None = None
+    window_s: float | None = None
+    backoff_s: float | None = None
+    backoff_max_s: float | None = None
+
+
+@dataclass(frozen=True)
+class RestartConfig(RestartPolicy):
+    """``[restart]`` of ``configs/launch.toml``: the policy of every child, plus overrides.
+
+    ``services`` is keyed by child name (a service, or ``"router"``).
+    """
+
+    services: dict[str, RestartOverride] = field(default_factory=dict)
+
+    def for_child(self, name: str) -> RestartPolicy:
+        """The effective policy of child ``name`` (its override merged over the base)."""
+        base = {f.name: getattr(self, f.name) for f in dataclasses.fields(RestartPolicy)}
+        override = self.services.get(name)
+        if override is not None:
+            base.update(
+                {
+                    f.name: getattr(override, f.name)
+                    for f in dataclasses.fields(override)
+                    if getattr(override, f.name) is not None
+                }
+            )
+        return RestartPolicy(**base)
+
+    def with_policy(self, policy: RestartMode) -> RestartConfig:
+        """This config with ``policy`` for every child (``up --restart``): a command-line
+        choice beats the file, per-service overrides included; their limits stay."""
+        services = {name: dataclasses.replace(o, policy=None) for name, o in self.services.items()}
+        return dataclasses.replace(self, policy=policy, services=services)
+
+
+RestartAction = Literal["restart", "leave", "give-up"]
+
+
+@dataclass(frozen=True)
+class RestartDecision:
+    """What to do about one exit: ``restart`` after ``delay_s`` (``attempt`` is its number
+    within the window), ``leave`` the child stopped, or ``give-up`` (stop everything)."""
+
+    action: RestartAction
+    reason: str
+    delay_s: float = 0.0
+    attempt: int = 0
+
+
+class RestartTracker:
+    """The restart decisions for one child: a sliding window of its recent restarts.
+
+    Pure on purpose (no processes, the time is an argument), so the policy is unit-tested
+    without spawning anything; the launcher only acts on the decisions.
+    """
+
+    def __init__(self, policy: RestartPolicy) -> None:
+        self.policy = policy
+        self._recent: deque[float] = deque()  # times of the restarts within the window
+        self.total = 0  # restarts over the launcher's lifetime (for the log)
+
+    def recent(self, now: float) -> int:
+        """Restarts within the last ``window_s`` before ``now``."""
+        while self._recent and now - self._recent[0] >= self.policy.window_s:
+            self._recent.popleft()
+        return len(self._recent)
+
+    def on_exit(self, returncode: int, now: float) -> RestartDecision:
+        """Decide about a child that exited with Popen's ``returncode`` at time ``now``."""
+        p = self.policy
+        if p.policy == "no":
+            return RestartDecision("give-up", "not restarted (restart policy 'no')")
+        if returncode == 0:
+            # Like compose's on-failure: a clean exit is the child's own decision to stop.
+            return RestartDecision("leave", "not restarted (a clean exit; restart on-failure)")
+        count = self.recent(now)
+        if count >= p.max_restarts:
+            return RestartDecision(
+                "give-up",
+                f"giving up: {count} restarts within {p.window_s:g} s already "
+                f"(max_restarts {p.max_restarts})",
+            )
+        self._recent.append(now)
+        self.total += 1
+        attempt = count + 1
+        delay = p.backoff(attempt)
+        return RestartDecision(
+            "restart",
+            f"restarting in {delay:g} s (restart {attempt} of {p.max_restarts} "
+            f"within {p.window_s:g} s; {self.total} in all)",
+            delay_s=delay,
+            attempt=attempt,
+        )
 
 
 @dataclass(frozen=True)
@@ -60,6 +214,7 @@ class LaunchConfig:
     router_wait_s: float = 10.0
     service_args: dict[str, list[str]] = field(default_factory=dict)
     profiles: dict[str, LaunchProfile] = field(default_factory=dict)
+    restart: RestartConfig = field(default_factory=RestartConfig)
 
     def __post_init__(self) -> None:
         if not 0.0 < self.stop_grace_s <= 10.0:
@@ -160,6 +315,9 @@ class Child:
     env: dict[str, str]
     proc: subprocess.Popen[bytes] | None = None
     reader: threading.Thread | None = None
+    tracker: RestartTracker | None = None
+    restart_at: float | None = None  # monotonic time of a scheduled restart
+    done: bool = False  # exited 0 under on-failure: left stopped on purpose
 
     @property
     def pid(self) -> int | None:
@@ -187,6 +345,7 @@ class Launcher:
         router_wait_s: float = 10.0,
         out: TextIO | None = None,
         connect: str | None = None,
+        restart: RestartConfig | None = None,
     ) -> None:
         self.listen = listen
         self.connect = connect_endpoint(listen) if listen else connect
@@ -196,6 +355,9 @@ class Launcher:
         self.stop_grace_s = stop_grace_s
         self.router_wait_s = router_wait_s
         self.out = out if out is not None else sys.stdout
+        # Used by run() only: start()/dead_child()/stop() callers (demo, testbench) supervise
+        # themselves and see a dead child as before.
+        self.restart = restart if restart is not None else RestartConfig()
         self.children: list[Child] = []
         self._write_lock = threading.Lock()
         self._stopping = False
@@ -228,6 +390,8 @@ class Launcher:
         return env
 
     def _spawn(self, child: Child) -> None:
+        """Start ``child`` (first start or restart: same argv and env) and pump its output."""
+        restart = child.proc is not None
         child.proc = subprocess.Popen(
             child.argv,
             stdin=subprocess.DEVNULL,
@@ -240,8 +404,14 @@ class Launcher:
             target=self._pump, args=(child,), name=f"out-{child.name}", daemon=True
         )
         child.reader.start()
-        self.children.append(child)
-        self.log(f"started {child.name} (pid {child.pid}): {' '.join(child.argv[3:])}")
+        if not restart:
+            self.children.append(child)
+        again = (
+            ""
+            if not restart or child.tracker is None
+            else f" again (restart {child.tracker.total})"
+        )
+        self.log(f"started {child.name} (pid {child.pid}){again}: {' '.join(child.argv[3:])}")
 
     def service_argv(self, name: str) -> list[str]:
         """The command line of service ``name`` as the launcher runs it."""
@@ -276,12 +446,59 @@ class Launcher:
 
     # ---------------------------------------------------------------- monitor
     def dead_child(self) -> Child | None:
-        """The first child that exited while we were not stopping, if any."""
+        """The first child that exited while we were not stopping, if any.
+
+        For callers that supervise without restarts (demo, testbench); ``run`` uses
+        :meth:`supervise`.
+        """
         if self._stopping:
             return None
         for child in self.children:
             if child.proc is not None and child.proc.poll() is not None:
                 return child
+        return None
+
+    def supervise(self, now: float) -> tuple[int, str] | None:
+        """One pass of ``run``'s loop: apply the restart policy to children that exited.
+
+        Starts children whose backoff is over, schedules restarts for new failures.
+        Returns ``(exit code, why)`` when the launcher must stop, else None. Call it from
+        the thread that spawned the children (``PR_SET_PDEATHSIG``).
+        """
+        if self._stopping:
+            return None
+        for child in self.children:
+            if child.restart_at is not None:
+                if now >= child.restart_at:
+                    child.restart_at = None
+                    try:
+                        self._spawn(child)
+                    except OSError as exc:  # e.g. out of processes or file descriptors
+                        self.log(f"error: cannot restart {child.name}: {exc}; stopping the rest")
+                        return EXIT_CHILD_DIED, f"{child.name} could not be restarted"
+                continue
+            if child.done or child.proc is None or child.proc.poll() is None:
+                continue
+            if child.tracker is None:
+                child.tracker = RestartTracker(self.restart.for_child(child.name))
+            code = child.proc.returncode
+            decision = child.tracker.on_exit(code, now)
+            what = f"{child.name} (pid {child.pid}) {describe_exit(code)}"
+            if decision.action == "restart":
+                # Grandchildren of the dead child may still hold its pipe or a port.
+                self._signal_group(child, signal.SIGKILL)
+                child.restart_at = now + decision.delay_s
+                self.log(f"{what}; {decision.reason}")
+            elif decision.action == "leave":
+                child.done = True
+                self.log(f"{what}; {decision.reason}")
+            else:
+                self.log(f"error: {what}; {decision.reason}; stopping the rest")
+                n = child.tracker.total
+                after = f" after {n} restart{'s' if n != 1 else ''}" if n else ""
+                return EXIT_CHILD_DIED, f"{child.name} died{after}"
+        if self.children and all(c.done for c in self.children):
+            return EXIT_OK, "every child exited cleanly"
         return None
 
     # ------------------------------------------------------------------- stop
@@ -330,7 +547,8 @@ class Launcher:
 
     # -------------------------------------------------------------------- run
     def run(self, stop_event: threading.Event) -> int:
-        """Start everything, supervise until ``stop_event`` or a child dies, then stop all."""
+        """Start everything, supervise (restarting children as their policy says) until
+        ``stop_event`` or a give-up, then stop all."""
         try:
             self.start()
         except RuntimeError as exc:
@@ -339,24 +557,16 @@ class Launcher:
         if not self.services:
             self.log("no services to start; running the router only")
         self.log("running; Ctrl-C or SIGTERM stops everything")
-        code = EXIT_OK
-        while not stop_event.wait(0.05):
-            dead = self.dead_child()
-            if dead is not None:
-                assert dead.proc is not None
-                self.log(
-                    f"error: {dead.name} (pid {dead.pid}) {describe_exit(dead.proc.returncode)}; "
-                    "stopping the rest"
-                )
-                code = EXIT_CHILD_DIED
-                break
+        outcome: tuple[int, str] | None = None
+        while outcome is None and not stop_event.wait(0.05):
+            outcome = self.supervise(time.monotonic())
+        code, why = outcome if outcome is not None else (EXIT_OK, "")
         self.log("stopping")
         self.stop()
         if code != EXIT_OK:
-            dead_name = dead.name if dead is not None else "?"
-            self.log(f"stopped; exit {code} because {dead_name} died")
+            self.log(f"stopped; exit {code} because {why}")
         else:
-            self.log("stopped cleanly")
+            self.log(f"stopped cleanly{'' if not why else f' ({why})'}")
         return code
 
 
@@ -409,12 +619,14 @@ def up(
     robot: str | None = None,
     config: str = "launch",
     profile: str | None = None,
+    restart: str | None = None,
     out: TextIO | None = None,
 ) -> int:
     """Entry point of ``quadmanip up`` (flags override ``configs/launch.toml``).
 
     ``profile`` names a ``[profiles.NAME]`` table of the config: its services replace the
-    configured list and its service_args are merged over the base ones.
+    configured list and its service_args are merged over the base ones. ``restart``
+    (``"no"`` or ``"on-failure"``) replaces the restart policy of every child.
     """
     out = out if out is not None else sys.stdout
     try:
@@ -423,6 +635,11 @@ def up(
             parse_endpoint(listen)
         if connect is not None:
             parse_endpoint(connect)
+        if restart is not None:
+            if restart not in RESTART_MODES:
+                raise ValueError(f"--restart must be one of {', '.join(RESTART_MODES)}")
+            mode = cast(RestartMode, restart)  # checked just above
+            cfg = dataclasses.replace(cfg, restart=cfg.restart.with_policy(mode))
     except ValueError as exc:
         out.write(f"up | error: {exc}\n")
         return EXIT_USAGE
@@ -445,6 +662,7 @@ def up(
         stop_grace_s=cfg.stop_grace_s,
         router_wait_s=cfg.router_wait_s,
         out=out,
+        restart=cfg.restart,
     )
     for note in notes:
         launcher.log(note)

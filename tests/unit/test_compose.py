@@ -1,4 +1,4 @@
-"""compose.yaml stays in step with the service registry, and every command parses.
+"""compose.yaml stays in step with the registry and launch.toml; every command parses.
 
 compose.unitree-sim.yaml (the override that runs the stack on the Unitree adapter) only
 switches ``sim`` off. Docker is not needed: the files are checked as YAML.
@@ -14,6 +14,7 @@ import pytest
 import yaml
 from quadmanip import services_registry
 from quadmanip.cli import build_parser
+from quadmanip.launcher import load_launch_config
 
 pytestmark = pytest.mark.unit
 
@@ -107,6 +108,15 @@ def test_services_reach_the_router_from_the_environment(compose):
         assert svc["environment"]["QM_ZENOH_CONNECT"] == f"tcp/router:{router_port}", name
         assert "router" in svc["depends_on"], name
         assert svc["image"] == compose["services"]["router"]["image"], name
+
+
+def test_restart_policy_matches_the_launcher(compose):
+    # Containers and `quadmanip up` recover from a crashed service (or router) the same way:
+    # restart on failure, leave a clean exit alone.
+    policy = load_launch_config().restart.policy
+    assert policy == "on-failure"
+    for name, svc in compose["services"].items():
+        assert svc["restart"] == policy, name
 
 
 def test_unitree_services_are_only_in_the_unitree_sim_profile(compose):
