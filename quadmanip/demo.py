@@ -61,7 +61,9 @@ class KeyTraffic:
     arrivals: deque[float] = field(default_factory=lambda: deque(maxlen=4096))
 
     def rate(self, now: float, window_s: float = 2.0) -> float:
-        n = sum(1 for t in self.arrivals if now - t <= window_s)
+        # A copy: the bus thread appends while the terminal thread counts (iterating the
+        # deque itself raised "deque mutated during iteration" in a demo run).
+        n = sum(1 for t in tuple(self.arrivals) if now - t <= window_s)
         return n / window_s
 
 
