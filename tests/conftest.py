@@ -239,3 +239,19 @@ def bus_factory() -> Iterator[Callable[..., object]]:
     yield open_bus
     for b in buses:
         b.close()
+
+
+@pytest.fixture
+def up_calls(monkeypatch: pytest.MonkeyPatch) -> dict:
+    """``launcher.up`` replaced by a recorder: the keyword arguments of its last call (the
+    CLI tests check what ``quadmanip up`` passes on without starting anything)."""
+    from quadmanip import launcher
+
+    seen: dict = {}
+
+    def fake_up(**kwargs: object) -> int:
+        seen.update(kwargs)
+        return 0
+
+    monkeypatch.setattr(launcher, "up", fake_up)
+    return seen

@@ -113,14 +113,8 @@ def test_up_help_mentions_profile(capsys):
     assert "--profile" in capsys.readouterr().out
 
 
-def test_cli_passes_the_profile_to_up(monkeypatch):
-    seen = {}
-
-    def fake_up(**kwargs):
-        seen.update(kwargs)
-        return 0
-
-    monkeypatch.setattr(launcher, "up", fake_up)
+def test_cli_passes_the_profile_to_up(up_calls):
+    seen = up_calls
     assert cli.main(["up", "--profile", "unitree-sim"]) == 0
     assert seen["profile"] == "unitree-sim"
     assert cli.main(["up"]) == 0

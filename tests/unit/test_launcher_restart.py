@@ -313,14 +313,8 @@ def test_an_unknown_restart_mode_is_a_usage_error():
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # nothing was started
 
 
-def test_cli_passes_restart_to_up(monkeypatch, capsys):
-    seen = {}
-
-    def fake_up(**kwargs):
-        seen.update(kwargs)
-        return 0
-
-    monkeypatch.setattr(launcher, "up", fake_up)
+def test_cli_passes_restart_to_up(up_calls, capsys):
+    seen = up_calls
     assert cli.main(["up", "--restart", "no"]) == 0
     assert seen["restart"] == "no"
     assert cli.main(["up"]) == 0
