@@ -102,7 +102,9 @@ def run_in_process(profile: str, record: bool = False, segment_s: float = SEGMEN
             into = (t - t_walk) - k * (segment_s + 0.5)
             if k < len(SEQUENCE) and into < segment_s:
                 seg, cmd = k, np.asarray(SEQUENCE[k], dtype=float)
-                if round(t / 0.002) % 10 == 0:
+                # a fall latches the safety checker's safe mode (legs damped): the rest of
+                # the sequence counts as tracking error, as it would on the robot
+                if round(t / 0.002) % 10 == 0 and ctl.phase != "safe":
                     ctl.set_velocity(*cmd, now=t)
                 if into >= SETTLE_S:
                     seg_err[k].append(plant.true_velocity_body() - cmd)
@@ -124,6 +126,8 @@ def run_in_process(profile: str, record: bool = False, segment_s: float = SEGMEN
             tv = plant.true_velocity_body()
             trace.append([t, *cmd, *tv, *ctl.debug.foot_forces[:, 2], float(seg)])
     wall = time.perf_counter() - wall0
+    if ctl.trip_reason and not fallen:
+        falls += 1  # the safety checker damped the legs before the body hit the ground
     segs = []
     all_err = np.concatenate([np.array(e) for e in seg_err if e])
     for v, e in zip(SEQUENCE, seg_err, strict=True):
@@ -143,6 +147,7 @@ def run_in_process(profile: str, record: bool = False, segment_s: float = SEGMEN
         "worst_segment_yaw_rmse_radps": max(s["yaw_rate_rmse_radps"] for s in segs),
         "segments": segs,
         "falls": falls,
+        "safe_mode_reason": ctl.trip_reason,  # "" unless the safety checker latched
         "in_process_rtf": plant.time / wall,
         "controller_tick_ms_p50": _pct(tick_ms, 50),
         "controller_tick_ms_p99": _pct(tick_ms, 99),

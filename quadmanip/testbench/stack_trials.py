@@ -60,6 +60,7 @@ HANDLE_STANDOFF = 0.51  # base to a closed drawer's handle when opening it (m)
 PLACE_REACH = 0.43  # release point ahead of the base for containers (m)
 RETRY_REASONS = ("too_close", "self_collision")  # a step back fixes these
 LATERAL_REASON = "lateral_out_of_range"  # facing the grasp point again fixes this
+GRASP_TRIES = 4  # grasp goals per trial, with a walk between (a task would retry too)
 
 
 def _rng(*key: object) -> np.random.Generator:
@@ -200,7 +201,9 @@ def _grasp(
         info["walked"] = True
         gs = spec()
     out = None
-    for attempt in range(3):
+    attempts: list[dict[str, Any]] = []  # what each try saw: why a failure happened
+    info["attempts"] = attempts
+    for attempt in range(GRASP_TRIES):
         reasons = []
         for far in (False, True) if gs.tilt else (False,):
             g = spec(far) if far else gs
@@ -219,10 +222,19 @@ def _grasp(
                 ),
             )
             info["far_side"] = far
+            bp, _, yaw = s.base_frame()
+            attempts.append(
+                {
+                    "reason": out.reason,
+                    "grasp_base": [round(float(v), 3) for v in g.position_base],
+                    "object_xy": [round(float(v), 3) for v in s.pose(name)[0][:2]],
+                    "base_xy_yaw": [round(float(bp[0]), 3), round(float(bp[1]), 3), round(yaw, 3)],
+                }
+            )
             if out.accepted:
                 return out, info
             reasons.append(out.reason)
-        if attempt == 2:
+        if attempt == GRASP_TRIES - 1:
             break
         _, _, yaw = s.base_frame()
         if any(LATERAL_REASON in why for why in reasons):
