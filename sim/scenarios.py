@@ -38,6 +38,7 @@ __all__ = [
     "paper_scenario",
     "save_scenario_file",
     "scenario_names",
+    "short_scenario",
 ]
 
 #: Table 4 of the paper, as printed ("driver" = screwdriver, "cracker" = cracker box, ...).
@@ -183,11 +184,16 @@ class _Sampler:
                 return False
         return True
 
-    def place(self, name: str, placed: list[tuple[Placement, float]]) -> Placement:
+    def place(
+        self, name: str, placed: list[tuple[Placement, float]], on_table: bool | None = None
+    ) -> Placement:
+        """A free resting pose for ``name``; on a table or the floor as drawn, or as
+        ``on_table`` says."""
         obj = self.catalogue.objects[name]
         r = obj.footprint_radius
+        forced = on_table
         for _ in range(500):
-            on_table = self.rng.random() < TABLE_PROBABILITY
+            on_table = self.rng.random() < TABLE_PROBABILITY if forced is None else forced
             if on_table:
                 surf = self.tables[int(self.rng.integers(len(self.tables)))]
                 margin = r + TABLE_EDGE
@@ -224,17 +230,32 @@ def object_contacts(model: mujoco.MjModel, data: mujoco.MjData) -> list[tuple[st
 
 
 def _scenario(
-    name: str, seed: int, objects: list[str], house: HouseConfig, catalogue: Catalogue, verify: bool
+    name: str,
+    seed: int,
+    objects: list[str],
+    house: HouseConfig,
+    catalogue: Catalogue,
+    verify: bool,
+    surfaces: tuple[str, ...] = (),
+    on_table: list[bool] | None = None,
 ) -> Scenario:
+    """``objects`` placed by one seeded sampler; only on the named ``surfaces`` if given,
+    each on a table or not as ``on_table`` says if given."""
     from quadmanip.sim.world.builder import build_world
     from quadmanip.sim.world.house import build_house
 
-    surfaces = build_house(mujoco.MjSpec(), house).surfaces
+    all_surfaces = build_house(mujoco.MjSpec(), house).surfaces
+    if surfaces:
+        unknown = set(surfaces) - {s.name for s in all_surfaces}
+        if unknown:
+            raise ValueError(f"unknown surfaces {sorted(unknown)}")
+        all_surfaces = tuple(s for s in all_surfaces if s.name in surfaces)
     rng = np.random.default_rng(seed)
-    sampler = _Sampler(rng, house, catalogue, surfaces)
+    sampler = _Sampler(rng, house, catalogue, all_surfaces)
     placed: list[tuple[Placement, float]] = []
-    for obj in objects:
-        placed.append((sampler.place(obj, placed), catalogue.objects[obj].footprint_radius))
+    for i, obj in enumerate(objects):
+        where = None if on_table is None else on_table[i]
+        placed.append((sampler.place(obj, placed, where), catalogue.objects[obj].footprint_radius))
     scenario = Scenario(name, seed, tuple(p for p, _ in placed))
     if not verify:
         return scenario
@@ -248,8 +269,9 @@ def _scenario(
         keep = [(p, r) for p, r in placed if p.name not in bad]
         for p, _ in placed:
             if p.name in bad:
+                where = None if on_table is None else on_table[objects.index(p.name)]
                 keep.append(
-                    (sampler.place(p.name, keep), catalogue.objects[p.name].footprint_radius)
+                    (sampler.place(p.name, keep, where), catalogue.objects[p.name].footprint_radius)
                 )
         order = {n: i for i, n in enumerate(objects)}
         placed = sorted(keep, key=lambda pr: order[pr[0].name])
@@ -284,6 +306,37 @@ def paper_scenario(
     catalogue = catalogue or load_catalogue()
     names = [catalogue.resolve(n) for n in PAPER_TRIALS[trial]]
     return _scenario(f"paper-{trial}", trial, names, house, catalogue, verify)
+
+
+#: Where a short tidy-up's objects lie: the living room, next to the robot's start.
+SHORT_SURFACES = ("living_floor", "living_table")
+
+
+def short_scenario(
+    seed: int,
+    n_objects: int = 2,
+    *,
+    verify: bool = True,
+    house: HouseConfig | None = None,
+    catalogue: Catalogue | None = None,
+) -> Scenario:
+    """A short tidy-up (the demo, the default suite's end-to-end test): ``n_objects`` of
+    different categories in the living room, the first on the floor, the second on the
+    table, alternating; deterministic in ``seed``."""
+    house = house or load_house()
+    catalogue = catalogue or load_catalogue()
+    cats = sorted(set(catalogue.categories))
+    if not 1 <= n_objects <= len(cats):
+        raise ValueError(f"a short scenario has 1..{len(cats)} objects, not {n_objects}")
+    rng = np.random.default_rng([seed, 0x5A])
+    chosen: list[str] = []
+    for cat in rng.permutation(cats)[:n_objects]:
+        members = sorted(n for n, o in catalogue.objects.items() if o.category == cat)
+        chosen.append(str(rng.choice(members)))
+    on_table = [i % 2 == 1 for i in range(n_objects)]
+    return _scenario(
+        f"short-{seed}", seed, chosen, house, catalogue, verify, SHORT_SURFACES, on_table
+    )
 
 
 def scenario_names() -> tuple[str, ...]:
@@ -401,6 +454,7 @@ def save_scenario_file(scenario: Scenario, path: str | Path) -> Path:
 
 def get_scenario(name_or_seed: str | int) -> Scenario:
     """``"paper-3"`` → Table 4 trial 3; ``17``, ``"17"`` or ``"seed-17"`` → ``generate(17)``;
+    ``"short-4"`` → ``short_scenario(4)`` (``"short-4x3"``: three objects);
     ``"empty"`` → the house without objects (locomotion and navigation runs); a path ending
     in ``.toml`` → :func:`load_scenario_file`."""
     if isinstance(name_or_seed, int):
@@ -413,9 +467,13 @@ def get_scenario(name_or_seed: str | int) -> Scenario:
     m = re.fullmatch(r"paper-(\d+)", text)
     if m and int(m.group(1)) in PAPER_TRIALS:
         return paper_scenario(int(m.group(1)))
+    m = re.fullmatch(r"short-(\d+)(?:x(\d+))?", text)
+    if m:
+        return short_scenario(int(m.group(1)), int(m.group(2) or 2))
     m = re.fullmatch(r"(?:seed-)?(\d+)", text)
     if m:
         return generate(int(m.group(1)))
     raise KeyError(
-        f"unknown scenario {name_or_seed!r} (use paper-1..5, a seed, 'empty' or a .toml file)"
+        f"unknown scenario {name_or_seed!r} (use paper-1..5, a seed, short-SEED[xN], "
+        "'empty' or a .toml file)"
     )

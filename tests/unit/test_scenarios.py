@@ -234,3 +234,20 @@ def test_bad_scenario_files_say_what_is_wrong(tmp_path, text, why):
     f.write_text(text + "\n")
     with pytest.raises(ValueError, match=why.replace("[", r"\[").replace("]", r"\]")):
         load_scenario_file(f)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 5, 11])
+def test_short_scenarios_floor_then_table_in_the_living_room_distinct_categories(seed):
+    cat = load_catalogue()
+    s = get_scenario(f"short-{seed}x3")
+    assert s.name == f"short-{seed}" and len(s.objects) == 3
+    assert [p.surface for p in s.objects] == ["living_floor", "living_table", "living_floor"]
+    assert len({cat.objects[p.name].category for p in s.objects}) == 3
+    assert get_scenario(f"short-{seed}") == get_scenario(f"short-{seed}x2")
+    assert get_scenario(f"short-{seed}") != get_scenario(f"short-{seed + 1}")
+    _check_placed_at_rest_and_free(s)
+
+
+def test_short_scenario_bad_size_is_an_error():
+    with pytest.raises(ValueError, match="1..6"):
+        get_scenario("short-0x9")
