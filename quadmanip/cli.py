@@ -27,6 +27,7 @@ BENCH_TARGETS: dict[str, str] = {
     "robustness": "quadmanip.testbench.bench_robustness:main",
     "navigation": "quadmanip.testbench.bench_navigation:main",
     "perception": "quadmanip.testbench.bench_perception:main",
+    "tidyup": "quadmanip.testbench.bench_tidyup:main",
 }
 ROUTER_TARGET = "quadmanip.common.router:main"
 SIM_TOOLS: dict[str, str] = {"snapshot": "quadmanip.sim.snapshot:main"}
@@ -135,6 +136,12 @@ def _cmd_demo(args: argparse.Namespace, extra: list[str]) -> int:
     from quadmanip import demo
 
     return demo.main([*args.args, *extra])
+
+
+def _cmd_tidyup(args: argparse.Namespace, extra: list[str]) -> int:
+    from quadmanip import tidyup
+
+    return tidyup.main([*args.args, *extra])
 
 
 def _cmd_bench(args: argparse.Namespace, extra: list[str]) -> int:
@@ -288,6 +295,14 @@ def build_parser() -> argparse.ArgumentParser:
         add_help=False,
     )
     p.set_defaults(func=_cmd_demo, args=[])
+
+    p = sub.add_parser(
+        "tidyup",
+        help="run the tidy-up task on a simulated stack and report it",
+        description="Run the tidy-up (arguments go to quadmanip.tidyup; try `tidyup --help`).",
+        add_help=False,
+    )
+    p.set_defaults(func=_cmd_tidyup, args=[])
 
     p = sub.add_parser(
         "bench",

@@ -1,0 +1,455 @@
+"""`quadmanip tidyup`: the tidy-up task end to end, for an operator (issue 15, part 2).
+
+Starts a private router, the sim (``lockstep`` by default: a slow machine slows the run
+down instead of making the robot stumble) with the chosen scenario, and every robot
+service (locomotion, manipulation, perception, navigation, behavior; viz with
+``--rerun``). The behavior service runs the task on its own from the robot's sensors;
+this command only watches:
+
+- live progress on the terminal from ``behavior/progress`` (objects found / placed /
+  failed, the current step, sim and wall time, real-time factor);
+- at the end, the report: the behavior's own record per object (found, grasped, placed,
+  time, failures with reasons) beside the sim judge's verdict (``sim/gt/judge``: the
+  referee, read here to score, never fed back to the robot), as a table and a JSON file;
+- timing (issue 15 part 4): the real-time factor of the whole run and the CPU cores used
+  by the robot's own services (everything but the sim, viz and the router), measured
+  from ``/proc`` (Linux).
+
+The same :class:`TidyRun` serves ``quadmanip bench tidyup`` and the suite's end-to-end
+test.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, TextIO
+
+from quadmanip.common import messages as m
+from quadmanip.common.bus import Bus, BusConfig
+from quadmanip.launcher import Launcher, free_endpoint, install_stop_signals
+from quadmanip.sim.scenarios import Scenario, get_scenario, save_scenario_file
+
+#: The robot's own services: they would share the robot's computer (CPU is measured).
+ROBOT_SERVICES = ("locomotion", "manipulation", "perception", "navigation", "behavior")
+#: The robot must be up and standing within this wall time, or the run fails.
+START_TIMEOUT_S = 240.0
+PRINT_EVERY_S = 5.0  # progress line period on a non-terminal output
+
+
+@dataclass
+class ObjectReport:
+    """One scenario object: what the robot said it did and what the referee saw."""
+
+    name: str
+    category: str
+    place: str  # its category's place (the catalogue)
+    found: bool = False
+    grasped: bool = False
+    placed_by_robot: bool = False  # the behavior's own belief
+    placed: bool = False  # the judge's verdict
+    where: str = ""  # where the judge last saw it
+    judge_note: str = ""  # why the judge says it is not placed
+    time_s: float | None = None  # sim time the behavior spent on it
+    failures: list[str] = field(default_factory=list)
+
+
+@dataclass
+class TidyReport:
+    """What one tidy-up run did (the JSON of ``--json``)."""
+
+    scenario: str
+    seed: int
+    mode: str
+    status: str = "not_started"  # done | budget | timeout | error | interrupted
+    reason: str = ""
+    objects: list[ObjectReport] = field(default_factory=list)
+    drawers_opened: list[str] = field(default_factory=list)
+    sim_time_s: float = 0.0
+    wall_s: float = 0.0
+    rtf: float = 0.0
+    robot_services_cpu_cores: float = 0.0
+    cpu_cores: dict[str, float] = field(default_factory=dict)
+    judge_valid: bool = True
+    leg_timeouts: int = 0
+    restarts: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def placed(self) -> int:
+        return sum(o.placed for o in self.objects)
+
+    def summary(self) -> dict[str, Any]:
+        n = len(self.objects)
+        times = sorted(o.time_s for o in self.objects if o.placed and o.time_s is not None)
+        return {
+            "objects": n,
+            "placed": self.placed,
+            "success_rate": self.placed / n if n else 0.0,
+            "drawers_opened": len(self.drawers_opened),
+            "time_per_object_s_p50": _median(times),
+            "sim_time_per_placed_object_s": self.sim_time_s / self.placed if self.placed else None,
+            "trial_time_s": self.sim_time_s,
+            "rtf": self.rtf,
+            "robot_services_cpu_cores": self.robot_services_cpu_cores,
+        }
+
+    def to_json(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["summary"] = self.summary()
+        return d
+
+    def table(self) -> str:
+        """A readable table, one row per object, then the totals."""
+        rows = [("object", "category", "place", "found", "grasped", "placed", "time", "why not")]
+        for o in self.objects:
+            why = o.judge_note if not o.placed else ""
+            if o.failures:
+                why = "; ".join([*o.failures[-2:], why] if why else o.failures[-2:])
+            rows.append(
+                (
+                    o.name,
+                    o.category,
+                    o.place,
+                    _yes(o.found),
+                    _yes(o.grasped),
+                    _yes(o.placed),
+                    "-" if o.time_s is None else f"{o.time_s:.0f} s",
+                    why[:70],
+                )
+            )
+        widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+        lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) for r in rows]
+        lines.insert(1, "  ".join("-" * w for w in widths))
+        s = self.summary()
+        lines.append("")
+        lines.append(
+            f"{self.scenario}: placed {self.placed} of {len(self.objects)} "
+            f"(judge), drawers opened {len(self.drawers_opened)}, status {self.status}"
+            + (f" ({self.reason})" if self.reason else "")
+        )
+        per = s["sim_time_per_placed_object_s"]
+        lines.append(
+            f"sim time {self.sim_time_s:.0f} s"
+            + (f" ({per:.0f} s per placed object)" if per else "")
+            + f", wall {self.wall_s:.0f} s, real-time factor {self.rtf:.2f}, "
+            f"robot services {self.robot_services_cpu_cores:.2f} CPU cores"
+        )
+        return "\n".join(lines)
+
+
+def _yes(flag: bool) -> str:
+    return "yes" if flag else "no"
+
+
+def _median(values: list[float]) -> float | None:
+    if not values:
+        return None
+    k = len(values)
+    return values[k // 2] if k % 2 else 0.5 * (values[k // 2 - 1] + values[k // 2])
+
+
+def _cpu_seconds(pid: int) -> float | None:
+    """User + system CPU seconds of a process and its reaped children (Linux /proc)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    tick = os.sysconf("SC_CLK_TCK")
+    return sum(int(v) for v in fields[11:13]) / tick
+
+
+class TidyRun:
+    """A whole tidy-up on a fresh private stack: start, watch, report, stop.
+
+    ``log`` receives every child's output (prefixed), ``say`` the progress lines.
+    """
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        *,
+        log: TextIO,
+        say: TextIO | None = None,
+        lockstep: bool = True,
+        rerun: str | None = None,
+        budget_s: float | None = None,
+        timeout_s: float = 3600.0,
+        service_args: dict[str, list[str]] | None = None,
+    ) -> None:
+        self.scenario = scenario
+        self.log = log
+        self.say = say
+        self.lockstep = lockstep
+        self.rerun = rerun
+        self.budget_s = budget_s
+        self.timeout_s = timeout_s
+        self.extra = {k: list(v) for k, v in (service_args or {}).items()}
+        self.report = TidyReport(
+            scenario.name, scenario.seed, "lockstep" if lockstep else "realtime"
+        )
+        self.launcher: Launcher | None = None
+        self.bus: Bus | None = None
+        self._tmp: tempfile.TemporaryDirectory[str] | None = None
+        self._cpu0: dict[str, float] = {}
+
+    # ------------------------------------------------------------------ stack
+    def _service_args(self, scenario_file: Path) -> dict[str, list[str]]:
+        sim = ["--lockstep" if self.lockstep else "--realtime", "--scenario", str(scenario_file)]
+        args: dict[str, list[str]] = {
+            "sim": sim,
+            "locomotion": [],
+            "manipulation": [],
+            "perception": [],
+            "navigation": [],
+            "behavior": [],
+        }
+        if self.budget_s is not None:
+            args["behavior"] += ["--set", f"task.trial_budget_s={self.budget_s}"]
+        if self.rerun:
+            args["viz"] = ["--set", f"output={self.rerun}"]
+        for k, v in self.extra.items():
+            args[k] = args.get(k, []) + v
+        return args
+
+    def _start(self) -> None:
+        self._tmp = tempfile.TemporaryDirectory(prefix="qm-tidyup-")
+        scn = save_scenario_file(self.scenario, Path(self._tmp.name) / "scenario.toml")
+        args = self._service_args(scn)
+        endpoint = free_endpoint()
+        self.launcher = Launcher(
+            listen=endpoint, services=list(args), service_args=args, out=self.log
+        )
+        self.launcher.start()
+        self.bus = Bus(
+            BusConfig(
+                mode="peer",
+                connect=(self.launcher.connect or endpoint,),
+                listen=("tcp/127.0.0.1:0",),
+                env_override=False,
+            )
+        )
+
+    def _stop(self) -> None:
+        if self.bus is not None:
+            self.bus.close()
+            self.bus = None
+        if self.launcher is not None:
+            self.launcher.stop()
+            self.launcher = None
+        if self._tmp is not None:
+            self._tmp.cleanup()
+            self._tmp = None
+
+    def _cpu(self) -> dict[str, float]:
+        assert self.launcher is not None
+        out = {}
+        for c in self.launcher.children:
+            if c.proc is not None:
+                s = _cpu_seconds(c.proc.pid)
+                if s is not None:
+                    out[c.name] = s
+        return out
+
+    def _say(self, text: str) -> None:
+        if self.say is not None:
+            self.say.write(text + "\n")
+            self.say.flush()
+
+    # ------------------------------------------------------------------ run
+    def run(self) -> TidyReport:
+        """Run to the behavior's end (or the wall timeout); always stops the stack."""
+        rep = self.report
+        w0 = time.monotonic()
+        try:
+            self._start()
+            self._watch(w0)
+        except KeyboardInterrupt:
+            rep.status, rep.reason = "interrupted", "stopped by the operator"
+        except RuntimeError as exc:
+            rep.status, rep.reason = "error", str(exc)
+        finally:
+            rep.wall_s = time.monotonic() - w0
+            self._stop()
+        return rep
+
+    def _watch(self, w0: float) -> None:
+        assert self.bus is not None and self.launcher is not None
+        rep = self.report
+        progress = self.bus.latest("behavior/progress")
+        clock = self.bus.latest("sim/clock")
+        judge = self.bus.latest("sim/gt/judge")
+        deadline = w0 + START_TIMEOUT_S
+        while progress.get() is None:
+            self._check_alive()
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"no behavior/progress within {START_TIMEOUT_S:.0f} s")
+            time.sleep(0.2)
+        self._cpu0, t_cpu0 = self._cpu(), time.monotonic()
+        c0 = clock.get()
+        sim0 = float(c0.stamp) if c0 is not None else 0.0
+        w_run0 = time.monotonic()
+        last_line, last_print = "", 0.0
+        while True:
+            self._check_alive()
+            p = progress.get()
+            c = clock.get()
+            now_sim = float(c.stamp) if c is not None else 0.0
+            wall = time.monotonic() - w0
+            rtf = (now_sim - sim0) / max(time.monotonic() - w_run0, 1e-6)
+            line = _progress_line(p)
+            if line != last_line or time.monotonic() - last_print > PRINT_EVERY_S:
+                self._say(f"[sim {now_sim:7.1f} s | wall {wall:6.0f} s | rtf {rtf:.2f}] {line}")
+                last_line, last_print = line, time.monotonic()
+            if p is not None and p.state in ("done", "failed", "budget"):
+                rep.status = "done" if p.state == "done" else p.state
+                rep.reason = p.reason
+                break
+            if wall > self.timeout_s:
+                rep.status, rep.reason = "timeout", f"no end within {self.timeout_s:.0f} s wall"
+                break
+            time.sleep(0.25)
+        cpu1, t_cpu1 = self._cpu(), time.monotonic()
+        span = max(t_cpu1 - t_cpu0, 1e-6)
+        rep.cpu_cores = {
+            k: round((cpu1[k] - self._cpu0.get(k, 0.0)) / span, 3) for k in cpu1 if k in self._cpu0
+        }
+        rep.robot_services_cpu_cores = round(
+            sum(v for k, v in rep.cpu_cores.items() if k in ROBOT_SERVICES), 3
+        )
+        c = clock.get()
+        rep.sim_time_s = (float(c.stamp) if c is not None else 0.0) - sim0
+        rep.rtf = rep.sim_time_s / max(time.monotonic() - w_run0, 1e-6)
+        self._score(progress.get(), self._final_judge(judge))
+
+    def _final_judge(self, judge: Any) -> m.JudgeReport | None:
+        """The judge's report after the task's end (it publishes on its own period)."""
+        first = judge.get()
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline:
+            r = judge.get()
+            if r is not None and (first is None or r.stamp > first.stamp):
+                return r
+            time.sleep(0.1)
+        return judge.get()
+
+    def _check_alive(self) -> None:
+        assert self.launcher is not None
+        dead = self.launcher.dead_child()
+        if dead is not None:
+            code = dead.proc.returncode if dead.proc else "?"
+            raise RuntimeError(f"{dead.name} exited (code {code})")
+
+    def _score(self, progress: Any, judge: m.JudgeReport | None) -> None:
+        from quadmanip.sim.world.objects import load_catalogue
+
+        rep = self.report
+        cat = load_catalogue()
+        mine = _objects_of(progress)
+        if judge is not None:
+            rep.judge_valid = bool(judge.valid)
+            rep.leg_timeouts = int(judge.leg_timeouts)
+        rep.drawers_opened = list(getattr(progress, "drawers_opened", []) or [])
+        for name in self.scenario.object_names:
+            o = ObjectReport(name, cat.objects[name].category, cat.place_of(name))
+            rec = mine.get(name)
+            if rec is not None:
+                o.found, o.grasped = rec["found"], rec["grasped"]
+                o.placed_by_robot, o.time_s = rec["placed"], rec["time_s"]
+                o.failures = rec["failures"]
+            if judge is not None and name in list(judge.objects):
+                i = list(judge.objects).index(name)
+                o.where, o.judge_note = judge.locations[i], judge.notes[i]
+                o.placed = name in list(judge.in_place) and bool(judge.valid)
+            rep.objects.append(o)
+
+
+def _objects_of(progress: Any) -> dict[str, dict[str, Any]]:
+    """The behavior's per-object record from a ``TaskProgress`` (parallel lists)."""
+    if progress is None:
+        return {}
+    out: dict[str, dict[str, Any]] = {}
+    for i, name in enumerate(progress.objects):
+        t = float(progress.object_time_s[i])
+        out[name] = {
+            "found": True,
+            "grasped": bool(progress.object_grasped[i]),
+            "placed": bool(progress.object_placed[i]),
+            "time_s": None if math.isnan(t) else t,
+            "failures": [f for f in progress.object_failures[i].split("\n") if f],
+        }
+    return out
+
+
+def _progress_line(p: Any) -> str:
+    if p is None:
+        return "waiting for the behavior service"
+    return f"found {len(p.objects)}, placed {sum(p.object_placed)}, failed {p.failed} | {p.step}"
+
+
+# --------------------------------------------------------------------------- command
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="quadmanip tidyup",
+        description="Run the tidy-up task on a fresh simulated stack and report what it did.",
+    )
+    g = ap.add_mutually_exclusive_group()
+    g.add_argument(
+        "--scenario",
+        default="short-0",
+        help="paper-1..5, short-SEED[xN] (a short tidy-up), a .toml file (default short-0)",
+    )
+    g.add_argument("--seed", type=int, help="a random scene: ten objects from this seed")
+    ap.add_argument("--json", help="report file (default: runs/tidyup-<scenario>.json)")
+    ap.add_argument("--log", help="the services' output (default: next to the report)")
+    ap.add_argument("--rerun", metavar="FILE.rrd", help="record the run with the viz service")
+    ap.add_argument("--realtime", action="store_true", help="sim in real time, not lockstep")
+    ap.add_argument("--budget-s", type=float, help="the task's time budget (sim seconds)")
+    ap.add_argument("--timeout-s", type=float, default=3600.0, help="wall-clock limit")
+    args = ap.parse_args(argv)
+    try:
+        scenario = get_scenario(args.seed if args.seed is not None else args.scenario)
+    except (KeyError, ValueError) as exc:
+        print(f"quadmanip tidyup: {exc}", file=sys.stderr)
+        return 2
+    out = Path(args.json or f"runs/tidyup-{scenario.name}.json")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    log_path = Path(args.log) if args.log else out.with_suffix(".log")
+    print(
+        f"tidyup: {scenario.name}, {len(scenario.objects)} objects "
+        f"({', '.join(scenario.object_names)}); services' output in {log_path}"
+    )
+    install_stop_signals()
+    with open(log_path, "w") as log:
+        run = TidyRun(
+            scenario,
+            log=log,
+            say=sys.stdout,
+            lockstep=not args.realtime,
+            rerun=args.rerun,
+            budget_s=args.budget_s,
+            timeout_s=args.timeout_s,
+        )
+        rep = run.run()
+    out.write_text(json.dumps(rep.to_json(), indent=2) + "\n")
+    print()
+    print(rep.table())
+    print(f"\nreport: {out}" + (f"\nrecording: {args.rerun}" if args.rerun else ""))
+    if rep.status == "error":
+        print(f"quadmanip tidyup: {rep.reason}", file=sys.stderr)
+        return 1
+    return 0 if rep.placed == len(rep.objects) else 3
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())
+
+
+__all__ = ["ROBOT_SERVICES", "ObjectReport", "TidyReport", "TidyRun", "main"]
