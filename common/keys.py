@@ -293,6 +293,8 @@ _TABLE: tuple[Topic, ...] = (
     # perception
     row("perception", "detections", m.Detections, "sensor", "out", "detections per frame"),
     row("perception", "objects", m.ObjectTracks, "event", "out", "object memory (2 Hz)"),
+    # behavior
+    row("behavior", "progress", m.TaskProgress, "event", "out", "task step + record (1 Hz)"),
 )
 
 
@@ -308,6 +310,7 @@ TABLE = KeyTable(
         action_row("navigation", "explore", m.ExploreGoal, "map the house (frontiers)"),
         action_row("perception", "estimate_grasp", m.GraspRequest, "grasp pose (Sec. 4.3-4.6)"),
         action_row("perception", "locate_handle", m.HandleRequest, "drawer handle from depth"),
+        action_row("behavior", "tidy_up", m.TidyUpGoal, "tidy the house (Sec. 5, 7.2)"),
     ),
 )
 """The product's key table."""

@@ -75,6 +75,9 @@ __all__ = [
     "PostureGoal",
     "RgbdImage",
     "RobotStatus",
+    "TASK_STATES",
+    "TaskProgress",
+    "TidyUpGoal",
     "decode",
     "encode",
     "example",
@@ -784,6 +787,77 @@ class HandleRequest(Message):
     distance: float = 0.15
 
 
+# --------------------------------------------------------------------------- behavior
+
+#: How the tidy-up task stands (``TaskProgress.state``): not started, running, or how it
+#: ended: everything searched and nothing graspable left (done), its time budget spent,
+#: cancelled, or unable to go on (failed, the reason says why).
+TASK_STATES: tuple[str, ...] = ("idle", "running", "done", "budget", "canceled", "failed")
+
+
+@message("qm.TaskProgress", (1, 0))
+class TaskProgress(Message):
+    """The tidy-up task's account of itself (``behavior/progress`` at every step change and
+    about once a second; also the result of ``behavior/action/tidy_up``): ``state`` (one of
+    ``TASK_STATES``) and why it ended (``reason``), the current ``step`` in words (e.g.
+    ``grasp: mug#3``) and object, robot time since the start against the ``budget``
+    (s, 0 = none), the drawers opened (names of the places file), the zones searched of
+    ``zones_total``, how many objects were given up (``failed``), and per object found
+    (parallel lists): its class, perception's track id, when it was first seen (robot
+    time), whether it was grasped, placed (the task's own claim: the judge decides), given
+    up, the robot time spent on it, the failures it cost and their reasons (one line
+    each, ``step: reason``, joined with newlines)."""
+
+    stamp: float
+    state: str = string(choices=TASK_STATES, default="idle")
+    reason: str = string(max_len=_MAX_TEXT, default="")
+    step: str = string(max_len=256, default="")
+    current_object: str = string(max_len=128, default="")
+    elapsed: float = 0.0
+    budget: float = 0.0
+    drawers_opened: list[str] = string_list(max_len=64, default_empty=True)
+    zones_searched: list[str] = string_list(max_len=64, default_empty=True)
+    zones_total: int = 0
+    failed: int = 0
+    objects: list[str] = string_list(max_len=64, default_empty=True)
+    object_track_ids: np.ndarray = array("i4", (None,), default=np.zeros(0))
+    object_found_at: np.ndarray = array("f8", (None,), default=np.zeros(0))
+    object_grasped: np.ndarray = array("?", (None,), default=np.zeros(0, bool))
+    object_placed: np.ndarray = array("?", (None,), default=np.zeros(0, bool))
+    object_given_up: np.ndarray = array("?", (None,), default=np.zeros(0, bool))
+    object_time_s: np.ndarray = array("f8", (None,), nonneg=True, default=np.zeros(0))
+    object_attempts: np.ndarray = array("i4", (None,), default=np.zeros(0))
+    object_failures: list[str] = string_list(max_len=_MAX_TEXT, default_empty=True)
+
+    def _check(self) -> None:
+        _same_rows(
+            self, "TaskProgress", len(self.objects), "object_track_ids", "object_found_at",
+            "object_grasped", "object_placed", "object_given_up", "object_time_s",
+            "object_attempts", "object_failures",
+        )  # fmt: skip
+        if self.elapsed < 0.0 or self.budget < 0.0 or min(self.zones_total, self.failed) < 0:
+            raise MessageError("TaskProgress times and counts must be >= 0")
+        if len(self.zones_searched) > self.zones_total:
+            raise MessageError("TaskProgress: more zones searched than zones_total")
+        if self.failed != int(np.count_nonzero(self.object_given_up)):
+            raise MessageError("TaskProgress.failed disagrees with object_given_up")
+
+
+@message("qm.TidyUpGoal", (1, 0))
+class TidyUpGoal(Message):
+    """Start a tidy-up (``behavior/action/tidy_up``): only objects of the classes in
+    ``labels`` (empty: every class), within ``time_budget`` s of robot time (0: the
+    configured budget). The result is the final :class:`TaskProgress`."""
+
+    stamp: float
+    labels: list[str] = string_list(max_len=64, default_empty=True)
+    time_budget: float = 0.0
+
+    def _check(self) -> None:
+        if self.time_budget < 0.0:
+            raise MessageError(f"TidyUpGoal.time_budget must be >= 0, got {self.time_budget}")
+
+
 # --------------------------------------------------------------------------- sim test / ground truth
 
 
@@ -967,6 +1041,7 @@ _EXAMPLE_FIXUPS: dict[type[Message], dict[str, object]] = {
     DrawerGoal: {"pull_direction": [-1.0, 0.0, 0.0]},
     Detections: {"labels": ["a"]},
     ObjectTracks: {"labels": ["a"]},
+    TaskProgress: {"objects": ["a"], "object_failures": ["x"]},
     JudgeReport: {
         "total": 2,
         "in_place": ["a"],

@@ -42,7 +42,11 @@ from quadmanip.launcher import (
 # Extra arguments per service when the demo runs it. With a leg controller the sim runs in
 # lockstep (it waits for every leg command, so a slow machine slows the demo down instead of
 # making the robot stumble); without one it free-runs in real time.
-DEMO_SERVICE_ARGS: dict[str, list[str]] = {"sim": ["--realtime"]}
+DEMO_SERVICE_ARGS: dict[str, list[str]] = {
+    "sim": ["--realtime"],
+    # the demo's operator drives the robot: the task must not start on its own
+    "behavior": ["--set", "node.start_on_launch=false"],
+}
 LOCKSTEP_SIM_ARGS = ["--lockstep"]
 # The robot must really walk in the demo: at least this far (ground truth, display only).
 MIN_WALK_M = 0.3

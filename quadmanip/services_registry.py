@@ -21,6 +21,7 @@ SERVICES: dict[str, str] = {
     "manipulation": "quadmanip.services.manipulation.node:main",
     "perception": "quadmanip.services.perception.node:main",
     "navigation": "quadmanip.services.navigation.node:main",
+    "behavior": "quadmanip.services.behavior.node:main",
     "viz": "quadmanip.services.viz.node:main",
     # The hardware adapter fills the sim's role on a Unitree SDK2 robot (docs/hardware.md),
     # and the simulated robot it is tested against (test and demo tooling).

@@ -308,7 +308,7 @@ class TidyRun:
             if line != last_line or time.monotonic() - last_print > PRINT_EVERY_S:
                 self._say(f"[sim {now_sim:7.1f} s | wall {wall:6.0f} s | rtf {rtf:.2f}] {line}")
                 last_line, last_print = line, time.monotonic()
-            if p is not None and p.state in ("done", "failed", "budget"):
+            if p is not None and p.state in ("done", "failed", "budget", "canceled"):
                 rep.status = "done" if p.state == "done" else p.state
                 rep.reason = p.reason
                 break
@@ -378,13 +378,21 @@ def _objects_of(progress: Any) -> dict[str, dict[str, Any]]:
     out: dict[str, dict[str, Any]] = {}
     for i, name in enumerate(progress.objects):
         t = float(progress.object_time_s[i])
-        out[name] = {
+        rec = {
             "found": True,
             "grasped": bool(progress.object_grasped[i]),
             "placed": bool(progress.object_placed[i]),
             "time_s": None if math.isnan(t) else t,
             "failures": [f for f in progress.object_failures[i].split("\n") if f],
         }
+        old = out.get(name)
+        if old is not None:  # one class seen as two objects (one is a spurious track)
+            rec["grasped"] = rec["grasped"] or old["grasped"]
+            rec["placed"] = rec["placed"] or old["placed"]
+            times = [v for v in (old["time_s"], rec["time_s"]) if v is not None]
+            rec["time_s"] = sum(times) if times else None
+            rec["failures"] = old["failures"] + rec["failures"]
+        out[name] = rec
     return out
 
 
@@ -395,6 +403,20 @@ def _progress_line(p: Any) -> str:
 
 
 # --------------------------------------------------------------------------- command
+def service_overrides(items: list[str]) -> dict[str, list[str]]:
+    """``["behavior.task.max_attempts=3"]`` -> ``{"behavior": ["--set", "task.max_attempts=3"]}``."""
+    out: dict[str, list[str]] = {}
+    for item in items:
+        service, dot, rest = item.partition(".")
+        if not dot or "=" not in rest or service not in (*ROBOT_SERVICES, "sim", "viz"):
+            raise ValueError(
+                f"--set {item!r}: expected SERVICE.KEY=VALUE with SERVICE one of "
+                f"{', '.join((*ROBOT_SERVICES, 'sim', 'viz'))}"
+            )
+        out.setdefault(service, []).extend(["--set", rest])
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
         prog="quadmanip tidyup",
@@ -413,7 +435,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--realtime", action="store_true", help="sim in real time, not lockstep")
     ap.add_argument("--budget-s", type=float, help="the task's time budget (sim seconds)")
     ap.add_argument("--timeout-s", type=float, default=3600.0, help="wall-clock limit")
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="SERVICE.KEY=VALUE",
+        help="a config override for one service, e.g. behavior.drawers.places=[] (repeatable)",
+    )
     args = ap.parse_args(argv)
+    try:
+        overrides = service_overrides(args.set)
+    except ValueError as exc:
+        print(f"quadmanip tidyup: {exc}", file=sys.stderr)
+        return 2
     try:
         scenario = get_scenario(args.seed if args.seed is not None else args.scenario)
     except (KeyError, ValueError) as exc:
@@ -436,6 +470,7 @@ def main(argv: list[str] | None = None) -> int:
             rerun=args.rerun,
             budget_s=args.budget_s,
             timeout_s=args.timeout_s,
+            service_args=overrides,
         )
         rep = run.run()
     out.write_text(json.dumps(rep.to_json(), indent=2) + "\n")
@@ -452,4 +487,4 @@ if __name__ == "__main__":  # pragma: no cover
     raise SystemExit(main())
 
 
-__all__ = ["ROBOT_SERVICES", "ObjectReport", "TidyReport", "TidyRun", "main"]
+__all__ = ["ROBOT_SERVICES", "ObjectReport", "TidyReport", "TidyRun", "main", "service_overrides"]

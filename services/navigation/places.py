@@ -1,128 +1,13 @@
-"""Named places of a map (paper Section 5.3: "predetermined search and deposit zones").
+"""The places file (named stands and targets in the map frame): one reader for every
+service, :mod:`quadmanip.common.places`; re-exported here for navigation's modules."""
 
-One TOML file beside each map (``maps/house.places.toml`` next to ``maps/house.yaml``)
-names, in that map's frame, every place the task walks to: the search zones (each room's
-floor areas, each table), the deposit places, the cabinet and its drawers. Each place has
-the pose the robot should stand at (``stand``: x, y in m, yaw in degrees, as a person
-writes it), the point it is about (``target``: x, y, z in m, e.g. a box's centre or a
-drawer's handle) and, for zones, their size (``size``: x, y in m, axis-aligned in the
-map). It is written once per house, like annotating a floor plan; a drafting tool
-(``quadmanip map``, from the house description) may write the first version. Services
-read it; none reads the simulator's world.
-
-Example::
-
-    [places.tray]
-    kind = "deposit"
-    stand = [7.0, 2.62, 90.0]
-    target = [7.0, 3.65, 0.43]
-"""
-
-from __future__ import annotations
-
-import math
-import tomllib
-from dataclasses import dataclass
-from pathlib import Path
-
-from quadmanip.services.navigation.grid import Pose2
+from quadmanip.common.places import (
+    KINDS,
+    Place,
+    PlacesError,
+    load_places,
+    places_path_for,
+    save_places,
+)
 
 __all__ = ["KINDS", "Place", "PlacesError", "load_places", "places_path_for", "save_places"]
-
-KINDS: tuple[str, ...] = ("search_floor", "search_table", "deposit", "cabinet", "drawer")
-
-
-class PlacesError(ValueError):
-    """A places file that cannot be used (the message says which place and why)."""
-
-
-@dataclass(frozen=True)
-class Place:
-    """A named place: what it is, where to stand (x, y, yaw rad), what it is about."""
-
-    name: str
-    kind: str
-    stand: Pose2
-    target: tuple[float, float, float]
-    size: tuple[float, float] = (0.0, 0.0)
-    note: str = ""
-
-
-def places_path_for(map_yaml: str | Path) -> Path:
-    """The places file that belongs to a map: ``NAME.places.toml`` beside ``NAME.yaml``."""
-    p = Path(map_yaml)
-    return p.with_name(p.stem + ".places.toml")
-
-
-def _floats(v: object, n: int, where: str) -> tuple[float, ...]:
-    if not isinstance(v, list) or len(v) != n:
-        raise PlacesError(f"{where}: want a list of {n} numbers, got {v!r}")
-    out = []
-    for x in v:
-        if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
-            raise PlacesError(f"{where}: want finite numbers, got {v!r}")
-        out.append(float(x))
-    return tuple(out)
-
-
-def load_places(path: str | Path) -> dict[str, Place]:
-    """Read and check a places file; raises :class:`PlacesError` naming what is wrong."""
-    path = Path(path)
-    try:
-        doc = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise PlacesError(f"{path}: no places file (write one beside the map)") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise PlacesError(f"{path}: not valid TOML ({exc})") from None
-    table = doc.get("places")
-    if not isinstance(table, dict) or not table:
-        raise PlacesError(f"{path}: needs a [places.NAME] table per place")
-    places: dict[str, Place] = {}
-    for name, p in table.items():
-        where = f"{path}: places.{name}"
-        if not isinstance(p, dict):
-            raise PlacesError(f"{where}: must be a table")
-        unknown = set(p) - {"kind", "stand", "target", "size", "note"}
-        if unknown:
-            raise PlacesError(f"{where}: unknown keys {sorted(unknown)}")
-        kind = p.get("kind")
-        if kind not in KINDS:
-            raise PlacesError(f"{where}: kind must be one of {KINDS}, got {kind!r}")
-        if "stand" not in p or "target" not in p:
-            raise PlacesError(f"{where}: needs 'stand' [x, y, yaw_deg] and 'target' [x, y, z]")
-        sx, sy, syaw = _floats(p["stand"], 3, f"{where}.stand")
-        target = _floats(p["target"], 3, f"{where}.target")
-        size = _floats(p.get("size", [0.0, 0.0]), 2, f"{where}.size")
-        places[name] = Place(
-            name=name,
-            kind=kind,
-            stand=(sx, sy, math.radians(syaw)),
-            target=(target[0], target[1], target[2]),
-            size=(size[0], size[1]),
-            note=str(p.get("note", "")),
-        )
-    return places
-
-
-def save_places(path: str | Path, places: list[Place] | dict[str, Place], header: str = "") -> Path:
-    """Write a places file (the format :func:`load_places` reads); returns its path."""
-    items = list(places.values()) if isinstance(places, dict) else list(places)
-    lines = [f"# {line}".rstrip() for line in header.splitlines()]
-    for p in items:
-        if p.kind not in KINDS:
-            raise PlacesError(f"place {p.name}: kind must be one of {KINDS}")
-        lines += [
-            "",
-            f"[places.{p.name}]",
-            f'kind = "{p.kind}"',
-            f"stand = [{p.stand[0]:.3f}, {p.stand[1]:.3f}, {math.degrees(p.stand[2]):.1f}]",
-            f"target = [{p.target[0]:.3f}, {p.target[1]:.3f}, {p.target[2]:.3f}]",
-        ]
-        if p.size != (0.0, 0.0):
-            lines.append(f"size = [{p.size[0]:.3f}, {p.size[1]:.3f}]")
-        if p.note:
-            lines.append(f'note = "{p.note}"')
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("\n".join(lines).lstrip("\n") + "\n")
-    return path

@@ -257,6 +257,39 @@ def laser_scan(draw: st.DrawFn) -> m.LaserScan:
     )
 
 
+@st.composite
+def task_progress(draw: st.DrawFn) -> m.TaskProgress:
+    n = draw(st.integers(0, 4))
+    given_up = draw(hnp.arrays(np.bool_, n))
+    zones = draw(st.lists(text, max_size=4))
+
+    def rows(name: str) -> np.ndarray:
+        return draw(array_strategy(_spec(m.TaskProgress, name), {0: n}))
+
+    return m.TaskProgress(
+        stamp=draw(finite64),
+        state=draw(st.sampled_from(m.TASK_STATES)),
+        reason=draw(text),
+        step=draw(text),
+        current_object=draw(text),
+        elapsed=draw(st.floats(0.0, 1e9)),
+        budget=draw(st.floats(0.0, 1e9)),
+        drawers_opened=draw(st.lists(text, max_size=3)),
+        zones_searched=zones,
+        zones_total=len(zones) + draw(st.integers(0, 1 << 20)),
+        failed=int(given_up.sum()),
+        objects=draw(st.lists(text, min_size=n, max_size=n)),
+        object_track_ids=rows("object_track_ids"),
+        object_found_at=rows("object_found_at"),
+        object_grasped=rows("object_grasped"),
+        object_placed=rows("object_placed"),
+        object_given_up=given_up,
+        object_time_s=rows("object_time_s"),
+        object_attempts=rows("object_attempts"),
+        object_failures=draw(st.lists(text, min_size=n, max_size=n)),
+    )
+
+
 unit_vec = st.lists(st.floats(-1, 1), min_size=3, max_size=3).map(
     lambda v: np.array(v) / np.linalg.norm(v) if np.linalg.norm(v) > 1e-3 else np.array([1.0, 0, 0])
 )
@@ -321,6 +354,8 @@ STRATEGIES: dict[type[Message], st.SearchStrategy] = {
     m.ObjectTracks: rows_of(m.ObjectTracks, ("labels",)),
     m.GraspRequest: auto(m.GraspRequest, max_distance=nonneg),
     m.HandleRequest: auto(m.HandleRequest),
+    m.TaskProgress: task_progress(),
+    m.TidyUpGoal: auto(m.TidyUpGoal, time_budget=st.floats(0.0, 1e9)),
 }
 
 # Messages that may ride inside ActionGoal.goal / ActionResult.result in the fuzz (no

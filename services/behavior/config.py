@@ -1,0 +1,48 @@
+"""Configuration of the behavior service (``configs/behavior.toml``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from quadmanip.services.behavior.coverage import SearchConfig
+from quadmanip.services.behavior.tidy_task import DepositSpec, DrawerConfig, TaskConfig
+
+__all__ = ["BehaviorConfig", "NodeConfig"]
+
+
+@dataclass(frozen=True)
+class NodeConfig:
+    """How the node runs: the places file, when the task starts, what it waits for."""
+
+    places_file: str = "maps/house.places.toml"  # a path, or a name under configs/
+    # Start a tidy-up at launch (as if a tidy_up goal with no filter had come): the robot,
+    # started in a house it has mapped, tidies it. Otherwise the task waits for a goal.
+    start_on_launch: bool = True
+    # Before a task starts: these services are alive, and locomotion stands (the task asks
+    # it to stand up when it lies damped) in one of these phases; within start_timeout.
+    required_services: tuple[str, ...] = ("locomotion", "manipulation", "navigation", "perception")
+    standing_phases: tuple[str, ...] = ("balance", "walk")
+    start_timeout: float = 300.0  # s (wall)
+    progress_period: float = 1.0  # s (wall) between progress messages (and at every step)
+    goal_timeout: float = 5.0  # s (wall) for a service to accept or reject a request
+    # s (wall) a request may run: lockstep can run at a fifth of real time on 2 cores, and
+    # a walk across the house takes a minute of robot time
+    action_timeout: float = 900.0
+    nav_tolerance_xy: float = 0.10  # m: navigate_to goals (the approach is the precise one)
+    nav_tolerance_yaw: float = 0.15  # rad
+    approach_tolerance_xy: float = 0.015  # m
+    approach_tolerance_yaw: float = 0.03  # rad
+    holding_min_mass: float = 0.005  # kg: a payload above this means the gripper holds something
+
+
+@dataclass(frozen=True)
+class BehaviorConfig:
+    """All of ``configs/behavior.toml``."""
+
+    node: NodeConfig = field(default_factory=NodeConfig)
+    task: TaskConfig = field(default_factory=TaskConfig)
+    drawers: DrawerConfig = field(default_factory=DrawerConfig)
+    # how each kind of search zone (the places file's kinds) is searched
+    search: dict[str, SearchConfig] = field(default_factory=dict)
+    # how objects go into each deposit place, by the catalogue's place name
+    deposits: dict[str, DepositSpec] = field(default_factory=dict)

@@ -1,0 +1,523 @@
+"""The behavior service: the tidy-up task (paper Sections 5 and 7.2) wired to the bus.
+
+The task itself (:mod:`.tidy_task`) is transport-free; this node gives it a
+:class:`BusRobot`, its :class:`~.robot_api.RobotApi` over the other services:
+
+* actions (clients): manipulation's ``move_to_posture``, ``grasp``, ``place``,
+  ``open_drawer``; navigation's ``navigate_to`` and ``approach``; perception's
+  ``estimate_grasp`` and ``locate_handle``;
+* inputs: ``navigation/pose`` (the map pose and map->odom), ``perception/objects`` (the
+  object memory), ``locomotion/odometry`` (the base in odom: manipulation's goals are in
+  the level body frame), ``locomotion/payload`` (what the gripper holds, as manipulation
+  told locomotion), ``locomotion/health`` (standing?). Never anything under ``sim/gt``.
+
+Outputs: ``behavior/progress`` (:class:`~quadmanip.common.messages.TaskProgress`, at every
+step change and every ``progress_period``; ``idle`` before the first task) and
+``locomotion/mode`` (``stand``, once, when the robot lies damped before a task).
+
+Action (server): ``tidy_up`` (``TidyUpGoal``: a class filter and a time budget; the
+result is the final ``TaskProgress``). With ``[node] start_on_launch`` the node runs one
+tidy-up on its own at start (what ``quadmanip tidyup`` and ``quadmanip up`` rely on); a
+goal while a task runs is rejected ``busy``.
+
+Before a task starts the node waits (``start_timeout``, wall) until the required services
+are alive, locomotion stands and navigation has localised the robot.
+
+Threads: the task runs in its own thread (the action's, or the launch thread) and blocks
+in one request at a time; Zenoh callbacks only fill latest-value caches; the control loop
+(``step``) publishes progress.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+from quadmanip.common import messages as m
+from quadmanip.common.actions import ActionCanceled, ActionClient, ActionFailed, GoalHandle
+from quadmanip.common.config import CONFIG_DIR
+from quadmanip.common.object_catalogue import load_catalogue
+from quadmanip.common.places import load_places
+from quadmanip.common.rotations import yaw_from_quat
+from quadmanip.common.service import Input, Output, Service, run_service
+from quadmanip.services.behavior.config import BehaviorConfig
+from quadmanip.services.behavior.frames import (
+    BasePose,
+    Point3,
+    Pose2,
+    base_from_odom,
+    carried_over,
+    map_from_odom,
+    odom_from_base,
+    odom_from_map,
+    wrap,
+)
+from quadmanip.services.behavior.report import Progress
+from quadmanip.services.behavior.robot_api import GraspPlan, HandlePlan, Outcome, SeenObject
+from quadmanip.services.behavior.tidy_task import (
+    TidyTask,
+    classes_from_catalogue,
+    knowledge_problems,
+)
+
+__all__ = ["BehaviorNode", "BusRobot", "main", "progress_message"]
+
+#: action name -> the service that serves it
+CLIENTS = {
+    "move_to_posture": "manipulation",
+    "grasp": "manipulation",
+    "place": "manipulation",
+    "open_drawer": "manipulation",
+    "navigate_to": "navigation",
+    "approach": "navigation",
+    "estimate_grasp": "perception",
+    "locate_handle": "perception",
+}
+STAND_EVERY_S = 2.0  # wall s between stand requests while the robot lies damped
+
+
+def _xyz(v: Sequence[float]) -> Point3:
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+def resolve_places(name: str) -> Path:
+    """A places file by path, else under configs/ (``maps/house.places.toml``)."""
+    p = Path(name)
+    return p if p.is_file() else CONFIG_DIR / name
+
+
+def progress_message(p: Progress, stamp: float) -> m.TaskProgress:
+    """The task's snapshot as a message."""
+    objs = p.objects
+    return m.TaskProgress(
+        stamp=stamp,
+        state=p.state,
+        reason=p.reason[:4096],
+        step=p.step[:256],
+        current_object=p.current_object[:128],
+        elapsed=p.elapsed,
+        budget=max(p.budget, 0.0),
+        drawers_opened=list(p.drawers_opened),
+        zones_searched=list(p.zones_searched),
+        zones_total=p.zones_total,
+        failed=sum(o.given_up for o in objs),
+        objects=[o.label for o in objs],
+        object_track_ids=np.array([o.track_id for o in objs], np.int32),
+        object_found_at=np.array([o.t_found for o in objs], float),
+        object_grasped=np.array([o.grasped for o in objs], bool),
+        object_placed=np.array([o.placed for o in objs], bool),
+        object_given_up=np.array([o.given_up for o in objs], bool),
+        object_time_s=np.array([max(o.time_spent, 0.0) for o in objs], float),
+        object_attempts=np.array([o.attempts for o in objs], np.int32),
+        object_failures=["\n".join(o.failures)[:4096] for o in objs],
+    )
+
+
+def _ended(state: str, reason: str, budget: float) -> Progress:
+    """The snapshot of a task that never started (``state`` ``idle`` or ``failed``)."""
+    return Progress(state, reason, "", "", 0.0, budget, (), (), 0, ())
+
+
+class BusRobot:
+    """:class:`~.robot_api.RobotApi` over the bus (see the module docstring).
+
+    Frames: the task speaks the map frame; navigation's ``approach`` takes odom targets
+    (map->odom from ``navigation/pose``), manipulation's goals and perception's requests
+    the level body frame (odometry's base pose).
+    """
+
+    def __init__(self, node: BehaviorNode, cancelled: Callable[[], bool]) -> None:
+        self.node = node
+        self.cfg = node.config.node
+        self.cancelled = cancelled
+
+    # ------------------------------------------------------------------ state
+    def now(self) -> float:
+        return self.node.bus.clock()
+
+    def wait(self, seconds: float) -> None:
+        t_end = self.now() + seconds
+        deadline = time.monotonic() + self.cfg.action_timeout
+        while self.now() < t_end and not self.cancelled() and time.monotonic() < deadline:
+            time.sleep(0.02)
+
+    def _map_to_odom(self) -> Pose2:
+        mp = self.node.map_pose.get()
+        if mp is None:
+            return (0.0, 0.0, 0.0)
+        return (float(mp.map_to_odom[0]), float(mp.map_to_odom[1]), float(mp.map_to_odom[2]))
+
+    def _base(self) -> BasePose:
+        od = self.node.odometry.get()
+        if od is None:
+            raise RuntimeError("no odometry: the base frame is unknown")
+        p = od.position
+        return BasePose(float(p[0]), float(p[1]), float(p[2]), yaw_from_quat(od.orientation))
+
+    def _to_base(self, p_map: Point3) -> Point3:
+        return base_from_odom(self._base(), odom_from_map(self._map_to_odom(), p_map))
+
+    def pose(self) -> Pose2 | None:
+        mp = self.node.map_pose.get()
+        if mp is None or mp.status == "lost":
+            return None
+        return (float(mp.x), float(mp.y), float(mp.yaw))
+
+    def objects(self) -> list[SeenObject]:
+        tracks = self.node.tracks.get()
+        if tracks is None:
+            return []
+        m2o = self._map_to_odom()
+        return [
+            SeenObject(
+                track_id=int(tracks.ids[i]),
+                label=tracks.labels[i],
+                position=map_from_odom(m2o, _xyz(tracks.centroids[i])),
+                confirmed=bool(tracks.confirmed[i]),
+                confidence=float(tracks.confidences[i]),
+            )
+            for i in range(len(tracks.labels))
+        ]
+
+    def holding(self) -> bool | None:
+        payload = self.node.payload.get()
+        if payload is None:
+            return None
+        return float(payload.mass) > self.cfg.holding_min_mass
+
+    # ------------------------------------------------------------------ requests
+    def _act(self, action: str, goal: m.Message) -> tuple[Outcome, m.Message | None]:
+        """Send ``goal`` and wait for its end (cancelled with the task)."""
+        handle = self.node.clients[action].send_goal(goal, timeout=self.cfg.goal_timeout)
+        if not handle.accepted:
+            return Outcome(False, f"{handle.reason or 'rejected'}", rejected=True), None
+        deadline = time.monotonic() + self.cfg.action_timeout
+        res = None
+        while res is None:
+            if self.cancelled() or time.monotonic() > deadline:
+                handle.cancel()
+                res = handle.result(timeout=2.0)
+                why = "cancelled" if self.cancelled() else f"{action}: no result in time"
+                return Outcome(False, why), None
+            res = handle.result(timeout=1.0, poll_s=1.0)
+        if res.status == "succeeded":
+            return Outcome(True), res.result
+        return Outcome(False, res.reason or res.status), res.result
+
+    def navigate_to(self, place: str = "", pose: Pose2 | None = None) -> Outcome:
+        c = self.cfg
+        goal = m.NavigateGoal(
+            stamp=self.now(),
+            place=place,
+            pose=list(pose) if pose is not None else [0.0, 0.0, 0.0],
+            frame="map",
+            tolerance_xy=c.nav_tolerance_xy,
+            tolerance_yaw=c.nav_tolerance_yaw,
+        )
+        return self._act("navigate_to", goal)[0]
+
+    def approach(
+        self, target: tuple[float, float], standoff: float, heading: float | None = None
+    ) -> Outcome:
+        c = self.cfg
+        m2o = self._map_to_odom()
+        t_odom = odom_from_map(m2o, (target[0], target[1], 0.0))
+        goal = m.ApproachGoal(
+            stamp=self.now(),
+            target=[t_odom[0], t_odom[1]],
+            frame="odom",
+            standoff=float(standoff),
+            heading=wrap(heading - m2o[2]) if heading is not None else 0.0,
+            face_target=heading is None,
+            tolerance_xy=c.approach_tolerance_xy,
+            tolerance_yaw=c.approach_tolerance_yaw,
+        )
+        return self._act("approach", goal)[0]
+
+    def move_to_posture(self, posture: str) -> Outcome:
+        return self._act("move_to_posture", m.PostureGoal(stamp=self.now(), posture=posture))[0]
+
+    def estimate_grasp(
+        self, label: str, camera: str, track_id: int = -1
+    ) -> tuple[Outcome, GraspPlan | None]:
+        req = m.GraspRequest(stamp=self.now(), track_id=track_id, label=label, camera=camera)
+        out, res = self._act("estimate_grasp", req)
+        if not out.ok or not isinstance(res, m.GraspGoal):
+            return (out if not out.ok else Outcome(False, "no grasp in the result")), None
+        # the robot stood still while probing: the base now is the base the frame saw
+        base = self._base()
+        seen = odom_from_base(base, _xyz(res.position))
+        return out, GraspPlan(
+            position=_xyz(res.position),
+            yaw=float(res.yaw),
+            approach=res.approach,
+            width=float(res.width),
+            object_name=res.object_name,
+            seen_from=base,
+            position_map=map_from_odom(self._map_to_odom(), seen),
+            tilt=float(res.tilt),
+            mass=float(res.mass),
+            hang=float(res.hang),
+        )
+
+    def grasp(self, plan: GraspPlan) -> Outcome:
+        position, yaw = carried_over(plan.position, plan.yaw, plan.seen_from, self._base())
+        goal = m.GraspGoal(
+            stamp=self.now(),
+            position=list(position),
+            yaw=yaw,
+            approach=plan.approach,
+            width=plan.width,
+            object_name=plan.object_name,
+            tilt=plan.tilt,
+            mass=plan.mass,
+            hang=plan.hang,
+        )
+        return self._act("grasp", goal)[0]
+
+    def place(self, position: Point3, yaw: float | None = None) -> Outcome:
+        goal = m.PlaceGoal(
+            stamp=self.now(),
+            position=list(self._to_base(position)),
+            yaw=0.0 if yaw is None else float(yaw),
+            turn=yaw is not None,
+        )
+        return self._act("place", goal)[0]
+
+    def locate_handle(self, hint: Point3, distance: float) -> tuple[Outcome, HandlePlan | None]:
+        req = m.HandleRequest(
+            stamp=self.now(), position=list(self._to_base(hint)), distance=float(distance)
+        )
+        out, res = self._act("locate_handle", req)
+        if not out.ok or not isinstance(res, m.DrawerGoal):
+            return (out if not out.ok else Outcome(False, "no handle in the result")), None
+        return out, HandlePlan(
+            _xyz(res.handle_position), _xyz(res.pull_direction), float(res.distance)
+        )
+
+    def open_drawer(self, handle: HandlePlan) -> Outcome:
+        goal = m.DrawerGoal(
+            stamp=self.now(),
+            handle_position=list(handle.position),
+            pull_direction=list(handle.pull_direction),
+            distance=handle.distance,
+        )
+        return self._act("open_drawer", goal)[0]
+
+
+class BehaviorNode(Service):
+    """Runs the tidy-up task; serves ``tidy_up``; publishes its progress."""
+
+    name = "behavior"
+    config_type = BehaviorConfig
+    inputs = (
+        Input("navigation/pose", latest_only=True, doc="map pose + map->odom"),
+        Input("perception/objects", latest_only=True, doc="the object memory"),
+        Input("locomotion/odometry", latest_only=True, doc="base in odom: the body frame"),
+        Input("locomotion/payload", latest_only=True, doc="what the gripper holds"),
+        Input("locomotion/health", latest_only=True, doc="standing? tripped?"),
+    )
+    outputs = (
+        Output("behavior/progress", doc="the task's step and per-object record"),
+        Output("locomotion/mode", doc="stand up before a task"),
+    )
+    actions = ("tidy_up",)
+    loop_period = 0.1
+
+    def setup(self) -> None:
+        """Loads the places file and the catalogue, checks them against the config, wires
+        the caches and clients; starts a task when ``start_on_launch``."""
+        cfg: BehaviorConfig = self.config
+        self.places = load_places(resolve_places(cfg.node.places_file))
+        self.classes = classes_from_catalogue(load_catalogue())
+        problems = knowledge_problems(
+            self.classes, self.places, cfg.task, cfg.drawers, cfg.search, cfg.deposits
+        )
+        if problems:
+            raise ValueError(f"behavior config: {'; '.join(problems)}")
+        self.map_pose = self.latest("navigation/pose")
+        self.tracks = self.latest("perception/objects")
+        self.odometry = self.latest("locomotion/odometry")
+        self.payload = self.latest("locomotion/payload")
+        self.health = self.latest("locomotion/health")
+        self.pub_progress = self.publisher("behavior/progress")
+        self.pub_mode = self.publisher("locomotion/mode")
+        self.clients: dict[str, ActionClient] = {
+            action: self.bus.action_client(service, action) for action, service in CLIENTS.items()
+        }
+        self.lock = threading.Lock()
+        self.busy = False
+        self.task: TidyTask | None = None
+        self.last = _ended("idle", "", cfg.task.trial_budget_s)
+        self.t_published = -math.inf
+        self.action_server("tidy_up", self._execute, accept=self._accept, policy="reject")
+        if cfg.node.start_on_launch:
+            self.busy = True
+            threading.Thread(target=self._run_on_launch, name="tidy-up", daemon=True).start()
+        self.log.info("ready", places=len(self.places), classes=len(self.classes),
+                      start_on_launch=cfg.node.start_on_launch)  # fmt: skip
+        self.set_state("running")
+
+    # ------------------------------------------------------------------ progress
+    def _publish(self, p: Progress) -> None:
+        self.pub_progress.publish(progress_message(p, self.bus.clock()))
+        self.t_published = time.monotonic()
+
+    def _on_step(self, p: Progress) -> None:
+        self.last = p
+        self._publish(p)
+
+    def step(self) -> None:
+        """Progress about once a second between step changes (and ``idle`` before)."""
+        if time.monotonic() - self.t_published < self.config.node.progress_period:
+            return
+        task = self.task
+        self._publish(task.progress() if task is not None else self.last)
+
+    # ------------------------------------------------------------------ running a task
+    def _get_ready(self, cancelled: Callable[[], bool]) -> str:
+        """Wait until the robot can start (module docstring); "" or why it cannot."""
+        nc = self.config.node
+        deadline = time.monotonic() + nc.start_timeout
+        t_stand = -math.inf
+        while True:
+            missing = sorted(set(nc.required_services) - self.bus.alive_services(0.5))
+            h = self.health.get()
+            standing = h is not None and h.state != "tripped" and h.phase in nc.standing_phases
+            if h is not None and h.phase in ("damp", "sit") and h.state != "tripped":
+                if time.monotonic() - t_stand > STAND_EVERY_S:  # lying damped: stand up
+                    self.pub_mode.publish(m.LocomotionMode(stamp=self.bus.clock(), mode="stand"))
+                    t_stand = time.monotonic()
+            mp = self.map_pose.get()
+            localised = mp is not None and mp.status in ("localized", "mapping")
+            if not missing and standing and localised:
+                return ""
+            if cancelled():
+                return "cancelled before the start"
+            if time.monotonic() > deadline:
+                why = []
+                if missing:
+                    why.append(f"services not running: {', '.join(missing)}")
+                if not standing:
+                    state = "no health" if h is None else f"{h.state}/{h.phase} {h.reason}"
+                    why.append(f"locomotion not standing ({state.strip()})")
+                if not localised:
+                    why.append(f"not localised ({'no pose' if mp is None else mp.status})")
+                return "; ".join(why)
+            time.sleep(0.2)
+
+    def _run(
+        self,
+        labels: Sequence[str],
+        budget: float | None,
+        cancelled: Callable[[], bool],
+        feedback: Callable[[Progress], None] | None = None,
+    ) -> Progress:
+        """One task from readiness to report (in the calling thread)."""
+        cfg: BehaviorConfig = self.config
+        full_budget = cfg.task.trial_budget_s if budget is None else budget
+        self._on_step(Progress("running", "", "getting ready", "", 0.0, full_budget, (), (), 0, ()))
+        why = self._get_ready(lambda: cancelled() or self.stopping)
+        if why:
+            self.log.error("tidy-up not started", reason=why)
+            end = _ended("canceled" if "cancelled" in why else "failed", why, full_budget)
+            self._on_step(end)
+            return end
+
+        def on_step(p: Progress) -> None:
+            self._on_step(p)
+            if feedback is not None:
+                feedback(p)
+
+        task = TidyTask(
+            BusRobot(self, lambda: cancelled() or self.stopping),
+            self.classes,
+            self.places,
+            cfg.task,
+            cfg.drawers,
+            cfg.search,
+            cfg.deposits,
+            labels=labels,
+            time_budget=budget,
+            on_step=on_step,
+            cancelled=lambda: cancelled() or self.stopping,
+        )
+        self.task = task
+        self.log.info("tidy-up started", budget=task.budget, labels=list(labels))
+        try:
+            report = task.run()
+        finally:
+            self.task = None
+        end = task.progress()
+        self._on_step(end)
+        self.log.info(
+            "tidy-up ended",
+            outcome=report.outcome,
+            reason=report.reason,
+            found=len(report.objects),
+            placed=end.placed,
+            given_up=end.given_up,
+            drawers=list(end.drawers_opened),
+            seconds=round(end.elapsed, 1),
+        )
+        return end
+
+    def _run_on_launch(self) -> None:
+        try:
+            self._run((), None, lambda: False)
+        except Exception as exc:  # noqa: BLE001 - say why in the log and the progress
+            self.log.exception("tidy-up crashed", error=repr(exc))
+            self._on_step(_ended("failed", repr(exc), self.config.task.trial_budget_s))
+        finally:
+            with self.lock:
+                self.busy = False
+
+    # ------------------------------------------------------------------ action
+    def _accept(self, goal: m.Message) -> tuple[bool, str]:
+        if not isinstance(goal, m.TidyUpGoal):
+            return False, f"unsupported goal {type(goal).__name__}"
+        unknown = sorted(set(goal.labels) - set(self.classes))
+        if unknown:
+            return False, f"unknown classes {unknown}"
+        with self.lock:
+            if self.busy:
+                return False, "busy: a tidy-up is running"
+            self.busy = True  # claimed until the goal's thread ends
+        return True, ""
+
+    def _execute(self, handle: GoalHandle) -> m.Message | None:
+        goal: m.TidyUpGoal = handle.goal  # type: ignore[assignment]
+
+        def feedback(p: Progress) -> None:
+            done = p.elapsed / p.budget if p.budget > 0 else 0.0
+            handle.feedback(min(max(done, 0.0), 1.0), p.step[:4096])
+
+        try:
+            end = self._run(
+                list(goal.labels),
+                goal.time_budget or None,
+                lambda: handle.cancel_requested,
+                feedback,
+            )
+        finally:
+            with self.lock:
+                self.busy = False
+        result = progress_message(end, self.bus.clock())
+        if end.state == "canceled":
+            raise ActionCanceled(end.reason, result)
+        if end.state == "failed":
+            raise ActionFailed(end.reason, result)
+        return result
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``quadmanip service behavior``."""
+    return run_service(BehaviorNode, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,118 @@
+"""What the tidy-up task records and reports: per object, per drawer, per trial, and
+the snapshots the operator sees."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+from quadmanip.services.behavior.frames import Point3
+
+__all__ = [
+    "DrawerRecord",
+    "Failure",
+    "ObjectRecord",
+    "ObjectSummary",
+    "Progress",
+    "TaskReport",
+]
+
+
+@dataclass(frozen=True)
+class Failure:
+    """One failure: in which step, why, when (robot time)."""
+
+    step: str
+    reason: str
+    t: float
+
+
+@dataclass
+class ObjectRecord:
+    """Everything the task did with one object."""
+
+    label: str
+    track_id: int
+    place: str
+    position: Point3
+    t_found: float
+    grasped: bool = False
+    placed: bool = False
+    given_up: bool = False
+    dropped: bool = False
+    release_seen: bool = False  # a track of the class was seen at the release point
+    attempts: int = 0
+    time_spent: float = 0.0  # s of robot time spent on it (approach to let go)
+    failures: list[Failure] = field(default_factory=list)
+
+    @property
+    def name(self) -> str:
+        return f"{self.label}#{self.track_id}"
+
+    @property
+    def finished(self) -> bool:
+        return self.placed or self.given_up
+
+
+@dataclass
+class DrawerRecord:
+    """What the task did with one drawer."""
+
+    place: str
+    opened: float = 0.0  # m pulled (what the pulls that succeeded asked for)
+    ok: bool = False
+    failures: list[Failure] = field(default_factory=list)
+
+
+@dataclass
+class TaskReport:
+    """The task's account of a trial (the judge's verdict is separate)."""
+
+    outcome: Literal["running", "done", "budget", "canceled", "failed"] = "running"
+    reason: str = ""
+    t_start: float = 0.0
+    t_end: float = 0.0
+    step: str = ""
+    drawers: list[DrawerRecord] = field(default_factory=list)
+    objects: list[ObjectRecord] = field(default_factory=list)
+    zones_searched: list[str] = field(default_factory=list)
+    zones_total: int = 0
+
+
+@dataclass(frozen=True)
+class ObjectSummary:
+    """One object's record as it stands (a copy: the task goes on changing its own)."""
+
+    label: str
+    track_id: int
+    t_found: float
+    grasped: bool
+    placed: bool
+    given_up: bool
+    time_spent: float
+    attempts: int
+    failures: tuple[str, ...]  # "step: reason"
+
+
+@dataclass(frozen=True)
+class Progress:
+    """A snapshot of the task for the operator: state, step, clock, per-object records."""
+
+    state: str
+    reason: str
+    step: str
+    current_object: str
+    elapsed: float
+    budget: float
+    drawers_opened: tuple[str, ...]
+    zones_searched: tuple[str, ...]
+    zones_total: int
+    objects: tuple[ObjectSummary, ...]
+
+    @property
+    def placed(self) -> int:
+        return sum(o.placed for o in self.objects)
+
+    @property
+    def given_up(self) -> int:
+        return sum(o.given_up for o in self.objects)

@@ -1,0 +1,125 @@
+"""How the tidy-up task talks to the robot: :class:`RobotApi` and what it answers.
+
+The node implements it over the other services' actions and topics
+(:class:`~quadmanip.services.behavior.node.BusRobot`); the unit tests with a simulated
+house. Positions are in the ``map`` frame unless a field says otherwise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+from quadmanip.services.behavior.frames import BasePose, Point3, Pose2
+
+__all__ = ["GraspPlan", "HandlePlan", "Outcome", "RobotApi", "SeenObject"]
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """How one request to the robot ended: ``ok``, else why (``rejected``: refused before
+    anything moved, e.g. a grasp out of reach)."""
+
+    ok: bool
+    reason: str = ""
+    rejected: bool = False
+
+
+@dataclass(frozen=True)
+class SeenObject:
+    """One object of perception's memory, in the map frame."""
+
+    track_id: int
+    label: str
+    position: Point3
+    confirmed: bool = True
+    confidence: float = 1.0
+
+
+@dataclass(frozen=True)
+class GraspPlan:
+    """Perception's grasp for manipulation: the grasp in the level body frame of the base
+    pose it was estimated from (``seen_from``, odom), and where the grasp point is in the
+    map (``position_map``: what the task steps around)."""
+
+    position: Point3
+    yaw: float
+    approach: str
+    width: float
+    object_name: str
+    seen_from: BasePose
+    position_map: Point3
+    tilt: float = 0.0
+    mass: float = 0.0
+    hang: float = 0.0
+
+
+@dataclass(frozen=True)
+class HandlePlan:
+    """A located drawer handle (level body frame) and how far to pull it."""
+
+    position: Point3
+    pull_direction: Point3
+    distance: float
+
+
+class RobotApi(Protocol):
+    """What the task asks of the robot. Every request blocks until it ends."""
+
+    def now(self) -> float:
+        """Robot time (s)."""
+        ...
+
+    def wait(self, seconds: float) -> None:
+        """Let ``seconds`` of robot time pass (the cameras keep looking)."""
+        ...
+
+    def pose(self) -> Pose2 | None:
+        """Where navigation believes the base is in the map (None: not localised)."""
+        ...
+
+    def objects(self) -> list[SeenObject]:
+        """Perception's object memory, map frame."""
+        ...
+
+    def holding(self) -> bool | None:
+        """Whether the gripper holds something (None: not known yet)."""
+        ...
+
+    def navigate_to(self, place: str = "", pose: Pose2 | None = None) -> Outcome:
+        """Walk to a named place of the places file, else to a map pose."""
+        ...
+
+    def approach(
+        self, target: tuple[float, float], standoff: float, heading: float | None = None
+    ) -> Outcome:
+        """Stand so that map point ``target`` lies ``standoff`` m straight ahead, facing
+        ``heading`` (map, rad) or, when None, facing the target (Algorithm 5)."""
+        ...
+
+    def move_to_posture(self, posture: str) -> Outcome:
+        """Move the arm to a named posture."""
+        ...
+
+    def estimate_grasp(
+        self, label: str, camera: str, track_id: int = -1
+    ) -> tuple[Outcome, GraspPlan | None]:
+        """Perception's grasp of an object (a track, else the best-seen of a class)."""
+        ...
+
+    def grasp(self, plan: GraspPlan) -> Outcome:
+        """Grasp and lift (Algorithm 6), the plan carried over to the current stance."""
+        ...
+
+    def place(self, position: Point3, yaw: float | None = None) -> Outcome:
+        """Place the held object at map point ``position``, the gripper turned to ``yaw``
+        (the grasp's convention, 0 = fingers along the body y) or as it is (None)."""
+        ...
+
+    def locate_handle(self, hint: Point3, distance: float) -> tuple[Outcome, HandlePlan | None]:
+        """The drawer handle near map point ``hint``, to be pulled ``distance`` m."""
+        ...
+
+    def open_drawer(self, handle: HandlePlan) -> Outcome:
+        """Pull the handle open."""
+        ...

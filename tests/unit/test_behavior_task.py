@@ -1,0 +1,684 @@
+"""The tidy-up task (services/behavior) against a small simulated house.
+
+:class:`FakeHouse` plays the robot behind :class:`RobotApi`: it walks where it is asked,
+its cameras see what lies in a band ahead when the arm is in a posture that looks that
+way (floor postures see the floor, table postures the tables), it grasps what is in reach,
+and puts an object down where it is asked. Failures are injected per object. Time is the
+fake robot's own clock (seconds per request), so nothing here depends on the machine.
+
+The task runs on the real places file, object catalogue and ``configs/behavior.toml``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+import pytest
+from quadmanip.common import messages as m
+from quadmanip.common.config import CONFIG_DIR, load_config
+from quadmanip.common.object_catalogue import load_catalogue
+from quadmanip.common.places import Place, load_places
+from quadmanip.services.behavior.config import BehaviorConfig
+from quadmanip.services.behavior.coverage import sees, zone_viewpoints
+from quadmanip.services.behavior.frames import (
+    BasePose,
+    base_from_odom,
+    carried_over,
+    map_from_odom,
+    odom_from_base,
+    odom_from_map,
+)
+from quadmanip.services.behavior.node import progress_message
+from quadmanip.services.behavior.report import Progress, TaskReport
+from quadmanip.services.behavior.robot_api import GraspPlan, HandlePlan, Outcome, SeenObject
+from quadmanip.services.behavior.tidy_task import (
+    TidyTask,
+    classes_from_catalogue,
+    knowledge_problems,
+)
+
+pytestmark = pytest.mark.unit
+
+CFG = load_config(BehaviorConfig, "behavior")
+PLACES = load_places(CONFIG_DIR / "maps" / "house.places.toml")
+CATALOGUE = load_catalogue()
+CLASSES = classes_from_catalogue(CATALOGUE)
+FLOOR_LOOKS = ("floor_search", "probe_floor")
+TABLE_LOOKS = ("table_search", "probe_table", "probe_horizontal")
+START = (0.8, 1.2, 0.0)
+
+
+@dataclass
+class Thing:
+    """An object of the fake house (its truth, which only the fake knows)."""
+
+    label: str
+    track_id: int
+    position: tuple[float, float, float]
+    on_table: bool = False
+    released_in: str = ""  # the place it was put down in ("floor": none)
+
+
+def _bearing(pose: tuple[float, float, float], p: tuple[float, ...]) -> tuple[float, float]:
+    dx, dy = p[0] - pose[0], p[1] - pose[1]
+    b = math.atan2(dy, dx) - pose[2]
+    return math.hypot(dx, dy), (b + math.pi) % (2 * math.pi) - math.pi
+
+
+class FakeHouse:
+    """A RobotApi over a handful of objects (see the module docstring)."""
+
+    def __init__(
+        self,
+        things: list[Thing],
+        *,
+        grasp_failures: dict[str, list[str]] | None = None,
+        drop_while_carrying: dict[str, int] | None = None,
+        sticky: dict[str, int] | None = None,
+        seconds_per_walk: float = 8.0,
+        localised: bool = True,
+    ) -> None:
+        self.things = {t.track_id: t for t in things}
+        self.grasp_failures = {k: list(v) for k, v in (grasp_failures or {}).items()}
+        self.drops = dict(drop_while_carrying or {})
+        self.sticky = dict(sticky or {})  # places that "succeed" but keep the object
+        self.walk_s = seconds_per_walk
+        self.localised = localised
+        self.t = 0.0
+        self.at = START
+        self.posture = "stow"
+        self.memory: dict[int, SeenObject] = {}
+        self.held: Thing | None = None
+        self.drawers: dict[str, float] = {}
+        self.calls: list[tuple[str, object]] = []
+        self.cancel_after: float | None = None
+
+    # -------------------------------------------------------------- senses
+    def _look(self) -> None:
+        for t in self.things.values():
+            if t is self.held:
+                continue
+            dist, bearing = _bearing(self.at, t.position)
+            looks = TABLE_LOOKS if t.on_table else FLOOR_LOOKS
+            if self.posture in looks and 0.25 <= dist <= 1.6 and abs(bearing) <= 0.7:
+                self.memory[t.track_id] = SeenObject(t.track_id, t.label, t.position)
+        if self.held is not None:  # the held object's track follows the gripper
+            x, y, yaw = self.at
+            p = (x + 0.3 * math.cos(yaw), y + 0.3 * math.sin(yaw), 0.35)
+            self.memory[self.held.track_id] = SeenObject(self.held.track_id, self.held.label, p)
+
+    def now(self) -> float:
+        return self.t
+
+    def wait(self, seconds: float) -> None:
+        self.t += seconds
+        self._look()
+
+    def pose(self) -> tuple[float, float, float] | None:
+        return self.at if self.localised else None
+
+    def objects(self) -> list[SeenObject]:
+        return list(self.memory.values())
+
+    def holding(self) -> bool | None:
+        return self.held is not None
+
+    # -------------------------------------------------------------- walking
+    def navigate_to(self, place: str = "", pose: tuple[float, float, float] | None = None):
+        self.calls.append(("navigate_to", place or pose))
+        self.t += self.walk_s
+        goal = PLACES[place].stand if place else pose
+        assert goal is not None
+        if self.held is not None and self.drops.get(self.held.label, 0) > 0:
+            self.drops[self.held.label] -= 1  # it slips out on the way, half-way there
+            half_way = ((self.at[0] + goal[0]) / 2, (self.at[1] + goal[1]) / 2, 0.05)
+            self.held.position = half_way
+            self.held = None
+        self.at = goal
+        self._look()
+        return Outcome(True)
+
+    def approach(self, target, standoff, heading=None):
+        self.calls.append(("approach", (tuple(target), standoff, heading)))
+        self.t += self.walk_s / 2
+        h = (
+            heading
+            if heading is not None
+            else math.atan2(target[1] - self.at[1], target[0] - self.at[0])
+        )
+        self.at = (target[0] - standoff * math.cos(h), target[1] - standoff * math.sin(h), h)
+        self._look()
+        return Outcome(True)
+
+    def move_to_posture(self, posture: str) -> Outcome:
+        self.calls.append(("move_to_posture", posture))
+        self.t += 1.0
+        self.posture = posture
+        self._look()
+        return Outcome(True)
+
+    # -------------------------------------------------------------- hands
+    def estimate_grasp(self, label, camera, track_id=-1):
+        self.calls.append(("estimate_grasp", (label, track_id)))
+        self.t += 1.0
+        t = self.things.get(track_id)
+        if t is None or t is self.held:
+            return Outcome(False, "not in view"), None
+        dist, bearing = _bearing(self.at, t.position)
+        looks = TABLE_LOOKS if t.on_table else FLOOR_LOOKS
+        if self.posture not in looks or dist > 1.2 or abs(bearing) > 0.7:
+            return Outcome(False, f"not in view: {label} in {camera}"), None
+        base = BasePose(self.at[0], self.at[1], 0.27, self.at[2])
+        plan = GraspPlan(
+            position=(dist, 0.0, t.position[2] - 0.27),
+            yaw=0.0,
+            approach="vertical",
+            width=0.05,
+            object_name=label,
+            seen_from=base,
+            position_map=t.position,
+        )
+        return Outcome(True), plan
+
+    def grasp(self, plan: GraspPlan) -> Outcome:
+        t = next(
+            x
+            for x in self.things.values()
+            if x.label == plan.object_name and x.position == plan.position_map
+        )
+        self.calls.append(("grasp", t.label))
+        self.t += 5.0
+        failures = self.grasp_failures.get(t.label)
+        if failures:
+            why = failures.pop(0)
+            rejected = why.startswith(("lateral", "too_", "self_"))
+            return Outcome(False, why, rejected=rejected)
+        dist, bearing = _bearing(self.at, t.position)
+        if not 0.2 <= dist <= 0.6 or abs(bearing) > 0.3:
+            return Outcome(False, f"too_far: {dist:.2f} m at {bearing:.2f} rad", rejected=True)
+        self.held = t
+        self._look()
+        return Outcome(True)
+
+    def place(self, position, yaw=None) -> Outcome:
+        self.calls.append(("place", (tuple(position), yaw)))
+        self.t += 4.0
+        if self.held is None:
+            return Outcome(False, "invalid_goal: nothing held", rejected=True)
+        if _bearing(self.at, position)[0] > 0.6:
+            return Outcome(False, "too_far: out of reach", rejected=True)
+        if self.sticky.get(self.held.label, 0) > 0:
+            self.sticky[self.held.label] -= 1
+            return Outcome(True)  # the action says done; the gripper still holds it
+        tidy = [p for p in PLACES.values() if p.kind in ("deposit", "drawer")]
+        near = min(tidy, key=lambda p: math.dist(p.target[:2], position[:2]))
+        inside = math.dist(near.target[:2], position[:2]) < 0.2
+        self.held.released_in = near.name if inside else "floor"
+        self.held.position = tuple(position)
+        self.memory[self.held.track_id] = SeenObject(
+            self.held.track_id, self.held.label, self.held.position
+        )
+        self.held = None
+        return Outcome(True)
+
+    def locate_handle(self, hint, distance):
+        self.calls.append(("locate_handle", tuple(hint)))
+        self.t += 1.0
+        return Outcome(True), HandlePlan((0.5, 0.0, 0.1), (-1.0, 0.0, 0.0), distance)
+
+    def open_drawer(self, handle: HandlePlan) -> Outcome:
+        drawer = min(
+            (p for p in PLACES.values() if p.kind == "drawer"),
+            key=lambda p: math.dist(p.stand[:2], self.at[:2]),
+        )
+        self.calls.append(("open_drawer", (drawer.name, handle.distance)))
+        self.t += 6.0
+        self.drawers[drawer.name] = self.drawers.get(drawer.name, 0.0) + handle.distance
+        return Outcome(True)
+
+    def cancelled(self) -> bool:
+        return self.cancel_after is not None and self.t >= self.cancel_after
+
+
+def _things() -> list[Thing]:
+    """Four objects of four categories in four zones (one on a table)."""
+    return [
+        Thing("tomato_soup_can", 1, (2.5, 1.4, 0.05)),  # living floor -> tray
+        Thing("screwdriver", 2, (6.0, 2.3, 0.016)),  # kitchen floor -> the top drawer
+        Thing("bowl", 3, (2.6, 3.2, 0.43), on_table=True),  # living table -> small box
+        Thing("baseball", 4, (4.0, 3.2, 0.037)),  # living corner -> green box
+    ]
+
+
+def _task(house: FakeHouse, **kw: object) -> TidyTask:
+    cfg = kw.pop("cfg", CFG.task)
+    return TidyTask(
+        house,
+        CLASSES,
+        PLACES,
+        cfg,  # type: ignore[arg-type]
+        CFG.drawers,
+        CFG.search,
+        CFG.deposits,
+        cancelled=house.cancelled,
+        **kw,  # type: ignore[arg-type]
+    )
+
+
+def _record(report: TaskReport, label: str):
+    recs = [r for r in report.objects if r.label == label]
+    assert len(recs) == 1, (label, recs)
+    return recs[0]
+
+
+def _calls(house: FakeHouse, name: str) -> list[object]:
+    return [arg for what, arg in house.calls if what == name]
+
+
+def _home(label: str) -> str:
+    """The places-file name where ``label`` belongs."""
+    return CFG.deposits[CATALOGUE.place_of(label)].place
+
+
+# ------------------------------------------------------------------ the whole trial
+
+
+@pytest.fixture(scope="module")
+def tidy_run() -> tuple[FakeHouse, TaskReport, list[Progress]]:
+    house = FakeHouse(_things())
+    seen: list[Progress] = []
+    report = _task(house, on_step=seen.append).run()
+    return house, report, seen
+
+
+def test_drawers_open_first_left_right_top_and_the_tools_drawer_wide(tidy_run) -> None:
+    house, report, _ = tidy_run
+    pulls = _calls(house, "open_drawer")
+    # the top drawer (tools) is pulled to 24 cm: 19 cm, then the rest
+    assert [d for d, _ in pulls] == ["drawer_left", "drawer_right", "drawer_top", "drawer_top"]
+    assert house.drawers == pytest.approx(
+        {"drawer_left": 0.15, "drawer_right": 0.15, "drawer_top": 0.24}
+    )
+    last_pull = max(i for i, (what, _) in enumerate(house.calls) if what == "open_drawer")
+    first_grasp = min(i for i, (what, _) in enumerate(house.calls) if what == "grasp")
+    assert last_pull < first_grasp
+    assert [(d.place, d.ok) for d in report.drawers] == [
+        ("drawer_left", True),
+        ("drawer_right", True),
+        ("drawer_top", True),
+    ]
+    # each pull from a handle perception located near the places file's handle
+    for hint in _calls(house, "locate_handle")[:3]:
+        assert any(math.dist(hint, p.target) < 1e-9 for p in PLACES.values())
+
+
+def test_every_object_goes_to_its_categorys_place(tidy_run) -> None:
+    house, report, _ = tidy_run
+    assert report.outcome == "done", report.reason
+    for t in house.things.values():
+        assert t.released_in == _home(t.label), t.label
+        rec = _record(report, t.label)
+        assert rec.grasped and rec.placed and not rec.given_up and rec.failures == []
+    assert sorted(report.zones_searched) == sorted(
+        p.name for p in PLACES.values() if p.kind.startswith("search_")
+    )
+    assert report.zones_total == len(report.zones_searched)
+
+
+def test_the_screwdriver_goes_into_the_drawer_across(tidy_run) -> None:
+    house, _, _ = tidy_run
+    top = PLACES["drawer_top"]
+    (release, yaw) = next(
+        arg for arg in _calls(house, "place") if math.dist(arg[0][:2], top.target[:2]) < 0.2
+    )
+    # 8.6 cm out of the closed handle (the middle of the 24 cm mouth), 7 cm above it
+    assert release[0] == pytest.approx(top.target[0] - 0.086)
+    assert release[2] == pytest.approx(top.target[2] + 0.07)
+    assert yaw == pytest.approx(math.pi / 2)  # 21.5 cm long, the mouth 20 cm
+
+
+def test_floors_are_searched_looking_down_and_tables_with_the_front_camera(tidy_run) -> None:
+    house, _, _ = tidy_run
+    postures = set(_calls(house, "move_to_posture"))
+    assert {"floor_search", "table_search", "probe_floor", "probe_table"} <= postures
+    # the bowl (on a table) was probed with the table posture, the can with the floor one
+    order = [(w, a) for w, a in house.calls if w in ("move_to_posture", "estimate_grasp")]
+    before = {}
+    for i, (w, a) in enumerate(order):
+        if w == "estimate_grasp":
+            before[a[0]] = next(p for ww, p in reversed(order[:i]) if ww == "move_to_posture")
+    assert before["bowl"] == "probe_table"
+    assert before["tomato_soup_can"] == "probe_floor"
+
+
+def test_report_and_progress_say_what_happened(tidy_run) -> None:
+    house, report, seen = tidy_run
+    assert seen[0].step.startswith("open_drawers") and seen[-1].state == "done"
+    assert report.t_end == house.t and report.t_start == 0.0
+    for rec in report.objects:
+        assert 0.0 < rec.time_spent < report.t_end
+        assert 0.0 < rec.t_found < report.t_end
+    final = seen[-1]
+    assert final.placed == 4 and final.given_up == 0
+    assert final.drawers_opened == ("drawer_left", "drawer_right", "drawer_top")
+    assert final.elapsed == pytest.approx(house.t)
+    # the message the node publishes carries the same record
+    msg = progress_message(final, stamp=house.t)
+    assert m.decode(m.encode(msg)) == msg
+    assert msg.state == "done" and sorted(msg.objects) == sorted(t.label for t in _things())
+    assert msg.object_placed.all() and msg.failed == 0
+    assert len(msg.zones_searched) == msg.zones_total == 6
+
+
+# ------------------------------------------------------------------ retries and give-up
+
+
+def test_a_lateral_rejection_faces_the_grasp_point_again_and_probes_again() -> None:
+    house = FakeHouse(
+        _things()[:1], grasp_failures={"tomato_soup_can": ["lateral_out_of_range: y 0.08"]}
+    )
+    report = _task(house).run()
+    rec = _record(report, "tomato_soup_can")
+    assert rec.placed and rec.attempts == 1
+    assert [f.reason for f in rec.failures] == ["grasp: lateral_out_of_range: y 0.08"]
+    assert house.things[1].released_in == "tray"
+    # after the rejection: an approach facing the object, a new estimate, the grasp
+    i = [w for w, _ in house.calls].index("grasp")
+    assert [w for w, _ in house.calls[i : i + 4]] == [
+        "grasp",
+        "approach",
+        "estimate_grasp",
+        "grasp",
+    ]
+    target, standoff, heading = house.calls[i + 1][1]  # type: ignore[misc]
+    assert heading is None and CFG.task.grasp_ahead[0] <= standoff <= CFG.task.grasp_ahead[1]
+
+
+def test_too_close_steps_back() -> None:
+    house = FakeHouse(_things()[:1], grasp_failures={"tomato_soup_can": ["too_close: x 0.2"]})
+    report = _task(house).run()
+    assert _record(report, "tomato_soup_can").placed
+    i = [w for w, _ in house.calls].index("grasp")
+    assert house.calls[i + 1][0] == "approach"
+    _, standoff, _ = house.calls[i + 1][1]  # type: ignore[misc]
+    # it stood at the probing standoff: one step back from there
+    assert standoff == pytest.approx(CFG.task.probe_standoff + CFG.task.step_back)
+
+
+def test_a_stubborn_object_is_given_up_and_the_others_are_tidied() -> None:
+    house = FakeHouse(_things(), grasp_failures={"baseball": ["grip_lost: slipped"] * 20})
+    report = _task(house).run()
+    ball = _record(report, "baseball")
+    assert ball.given_up and not ball.placed and not ball.grasped
+    assert ball.attempts == CFG.task.max_attempts == len(ball.failures)
+    assert all(f.step == "grasp" and "slipped" in f.reason for f in ball.failures)
+    assert _calls(house, "grasp").count("baseball") == CFG.task.max_attempts
+    assert report.outcome == "done"
+    for label in ("tomato_soup_can", "screwdriver", "bowl"):
+        assert _record(report, label).placed
+    assert house.things[4].released_in == ""  # never moved
+    msg = progress_message(_task(house).progress(), 0.0)  # a fresh task: nothing yet
+    assert msg.objects == () and msg.failed == 0
+
+
+def test_an_object_dropped_on_the_way_is_found_again_and_placed() -> None:
+    house = FakeHouse(_things()[:1], drop_while_carrying={"tomato_soup_can": 1})
+    report = _task(house).run()
+    rec = _record(report, "tomato_soup_can")
+    assert rec.dropped and rec.placed
+    assert [f.reason for f in rec.failures] == ["dropped while carrying"]
+    assert _calls(house, "grasp") == ["tomato_soup_can"] * 2
+    assert house.things[1].released_in == "tray"
+
+
+def test_a_place_is_checked_from_the_gripper_and_tried_again() -> None:
+    house = FakeHouse(_things()[:1], sticky={"tomato_soup_can": 1})
+    report = _task(house).run()
+    rec = _record(report, "tomato_soup_can")
+    assert rec.placed and [f.reason for f in rec.failures] == ["still holding after the place"]
+    assert len(_calls(house, "place")) == 2
+    assert house.things[1].released_in == "tray"
+
+
+# ------------------------------------------------------------------ ends
+
+
+def test_the_time_budget_ends_the_trial() -> None:
+    house = FakeHouse(_things(), seconds_per_walk=20.0)
+    budget = 300.0
+    report = _task(house, time_budget=budget).run()
+    assert report.outcome == "budget" and "300" in report.reason
+    # it stopped at the first step change past the budget, with objects left
+    assert budget <= report.t_end - report.t_start < budget + 120.0
+    assert sum(r.placed for r in report.objects) < len(house.things)
+
+
+def test_not_localised_fails_after_the_ready_timeout() -> None:
+    house = FakeHouse(_things(), localised=False)
+    report = _task(house).run()
+    assert report.outcome == "failed" and "not localised" in report.reason
+    assert house.calls == [] and report.t_end >= CFG.task.ready_timeout
+
+
+def test_cancel_ends_the_trial() -> None:
+    house = FakeHouse(_things())
+    house.cancel_after = 40.0
+    report = _task(house).run()
+    assert report.outcome == "canceled"
+    assert not any(r.placed for r in report.objects)
+
+
+def test_only_the_wanted_classes_and_nothing_already_in_place() -> None:
+    tray = PLACES["tray"].target
+    things = [*_things(), Thing("coffee_can", 5, (tray[0] + 0.05, tray[1] - 0.05, 0.47), True)]
+    house = FakeHouse(things)
+    report = _task(house, labels=("baseball", "coffee_can")).run()
+    assert report.outcome == "done"
+    assert [r.label for r in report.objects] == ["baseball"]
+    assert set(_calls(house, "grasp")) == {"baseball"}
+    assert house.things[4].released_in == "green_box"
+
+
+# ------------------------------------------------------------------ knowledge, geometry
+
+
+def test_the_shipped_config_knows_every_class_and_place() -> None:
+    problems = knowledge_problems(CLASSES, PLACES, CFG.task, CFG.drawers, CFG.search, CFG.deposits)
+    assert problems == []
+    bad_deposits = {k: v for k, v in CFG.deposits.items() if k != "tray"}
+    bad = knowledge_problems(
+        CLASSES, PLACES, CFG.task, CFG.drawers, CFG.search, bad_deposits, ("unicorn",)
+    )
+    assert any("no deposit spec for its place 'tray'" in p for p in bad)
+    assert any("unicorn" in p for p in bad)
+    with pytest.raises(ValueError, match="no place 'drawer_middle'"):
+        _task(FakeHouse([]), cfg=replace(CFG.task, zones=("drawer_middle",)))
+
+
+def _zone_points(z: Place) -> list[tuple[float, float]]:
+    """A grid over the zone (its outer 2.5 % left out: the band's edges are exact)."""
+    return [
+        (
+            z.target[0] + (i / 10 - 0.5) * z.size[0] * 0.95,
+            z.target[1] + (j / 10 - 0.5) * z.size[1] * 0.95,
+        )
+        for i in range(11)
+        for j in range(11)
+    ]
+
+
+@pytest.mark.parametrize("zone", [n for n, p in PLACES.items() if p.kind == "search_floor"])
+def test_floor_viewpoints_see_the_whole_zone(zone: str) -> None:
+    z = PLACES[zone]
+    cfg = CFG.search["search_floor"]
+    vps = zone_viewpoints(z.stand, z.target[:2], z.size, cfg)
+    assert vps[0] == pytest.approx(z.stand)
+    unseen = [p for p in _zone_points(z) if not any(sees(v, p, cfg) for v in vps)]
+    assert unseen == []
+    assert len(vps) <= 16
+    for x, y, _ in vps:  # at the stand, or inside the zone (on the stand's line into it)
+        inside = abs(x - z.target[0]) <= z.size[0] / 2 and abs(y - z.target[1]) <= z.size[1] / 2
+        assert inside or (x, y) == pytest.approx(z.stand[:2])
+
+
+def test_a_table_is_searched_from_its_stand_line_stepping_sideways() -> None:
+    z = PLACES["living_table"]
+    cfg = CFG.search["search_table"]
+    vps = zone_viewpoints(z.stand, z.target[:2], z.size, cfg)
+    assert len(vps) == 3
+    assert all(v[1] == pytest.approx(z.stand[1]) and v[2] == z.stand[2] for v in vps)
+    assert all(any(sees(v, p, cfg) for v in vps) for p in _zone_points(z))
+    assert sorted(v[0] for v in vps) == pytest.approx(
+        [z.stand[0] - cfg.shift, z.stand[0], z.stand[0] + cfg.shift]
+    )
+
+
+def test_frames_round_trip_and_a_grasp_is_carried_over_a_step() -> None:
+    m2o = (0.3, -0.2, 0.4)
+    p = (2.0, 1.0, 0.3)
+    assert map_from_odom(m2o, odom_from_map(m2o, p)) == pytest.approx(p)
+    base = BasePose(1.0, 2.0, 0.27, math.pi / 2)
+    assert base_from_odom(base, (1.0, 2.5, 0.0)) == pytest.approx((0.5, 0.0, -0.27))
+    assert odom_from_base(base, (0.5, 0.0, -0.27)) == pytest.approx((1.0, 2.5, 0.0))
+    # seen 0.9 m ahead from the far stance; stepped 0.55 m in and turned a little
+    then = BasePose(0.0, 0.0, 0.27, 0.0)
+    now = BasePose(0.55, 0.0, 0.26, 0.1)
+    pos, yaw = carried_over((0.9, 0.0, 0.13), 0.2, then, now)
+    assert odom_from_base(now, pos) == pytest.approx(odom_from_base(then, (0.9, 0.0, 0.13)))
+    assert pos[0] == pytest.approx(0.35 * math.cos(0.1)) and yaw == pytest.approx(0.1)
+    assert pos[2] == pytest.approx(0.14)
+
+
+# ------------------------------------------------------------------ the node's adapter
+
+
+class _Cache:
+    def __init__(self, msg: object = None) -> None:
+        self.msg = msg
+
+    def get(self) -> object:
+        return self.msg
+
+
+class _Handle:
+    def __init__(self, accepted: bool, reason: str, result: m.ActionResult | None) -> None:
+        self.accepted, self.reason, self._result = accepted, reason, result
+        self.done = result is not None
+
+    def result(self, timeout: float | None = None, poll_s: float = 2.0) -> m.ActionResult | None:
+        return self._result
+
+    def cancel(self, timeout: float = 1.0) -> bool:
+        return True
+
+
+class _Client:
+    """An action client that answers every goal at once."""
+
+    def __init__(self, result: m.Message | None = None, reject: str = "", fail: str = "") -> None:
+        self.sent: list[m.Message] = []
+        self.answer, self.reject, self.fail = result, reject, fail
+
+    def send_goal(self, goal: m.Message, timeout: float = 2.0) -> _Handle:
+        self.sent.append(goal)
+        if self.reject:
+            return _Handle(False, self.reject, None)
+        status = "failed" if self.fail else "succeeded"
+        res = m.ActionResult(stamp=0.0, goal_id="g", status=status, reason=self.fail,
+                             result=self.answer)  # fmt: skip
+        return _Handle(True, "", res)
+
+
+def _bus_robot(**clients: _Client):
+    """A BusRobot on a stub node: map->odom (1, 0, 90 deg), the base at odom (2, 1, 0.27)
+    heading 90 deg (so at map (0, 2) heading 180 deg)."""
+    from types import SimpleNamespace
+
+    from quadmanip.common.rotations import quat_from_yaw
+    from quadmanip.services.behavior.node import CLIENTS, BusRobot
+
+    node = SimpleNamespace(
+        config=CFG,
+        bus=SimpleNamespace(clock=lambda: 12.0),
+        map_pose=_Cache(
+            m.MapPose(
+                stamp=12.0,
+                x=0.0,
+                y=2.0,
+                yaw=math.pi,
+                covariance=np.eye(3) * 1e-4,
+                map_to_odom=[1.0, 0.0, math.pi / 2],
+            )  # fmt: skip
+        ),
+        odometry=_Cache(
+            m.Odometry(
+                stamp=12.0,
+                position=[2.0, 1.0, 0.27],
+                orientation=quat_from_yaw(math.pi / 2),
+                linear_velocity=np.zeros(3),
+                angular_velocity=np.zeros(3),
+            )  # fmt: skip
+        ),
+        tracks=_Cache(),
+        payload=_Cache(),
+        clients={name: clients.get(name, _Client()) for name in CLIENTS},
+    )
+    return BusRobot(node, lambda: False), node  # type: ignore[arg-type]
+
+
+def test_the_adapter_speaks_each_services_frame() -> None:
+    grasp_answer = m.GraspGoal(stamp=12.0, position=[0.4, 0.0, -0.2], yaw=0.3, width=0.06,
+                               object_name="mug", mass=0.1)  # fmt: skip
+    clients = {"estimate_grasp": _Client(grasp_answer), "grasp": _Client(), "place": _Client()}
+    robot, node = _bus_robot(**clients, approach=_Client())
+    assert robot.pose() == pytest.approx((0.0, 2.0, math.pi))
+    # a map point 1 m ahead of the robot (map (-1, 2)) is 1 m ahead in the body frame
+    out = robot.place((-1.0, 2.0, 0.27), yaw=None)
+    assert out.ok
+    place = node.clients["place"].sent[0]
+    assert place.position == pytest.approx([1.0, 0.0, 0.0]) and not place.turn
+    # navigation's approach takes odom targets and headings
+    robot.approach((-1.0, 2.0), 0.36, heading=math.pi)
+    goal = node.clients["approach"].sent[0]
+    assert goal.frame == "odom" and goal.target == pytest.approx([2.0, 2.0])
+    assert goal.heading == pytest.approx(math.pi / 2) and not goal.face_target
+    robot.approach((-1.0, 2.0), 0.36)
+    assert node.clients["approach"].sent[1].face_target
+    # a grasp 0.4 m ahead is at map (-0.4, 2); after a 0.1 m step in it is 0.3 m ahead
+    out, plan = robot.estimate_grasp("mug", "gripper_camera", 7)
+    assert out.ok and plan is not None
+    assert plan.position_map == pytest.approx((-0.4, 2.0, 0.07))
+    assert node.clients["estimate_grasp"].sent[0].track_id == 7
+    node.odometry.msg = node.odometry.msg.replace(position=[2.0, 1.1, 0.27])
+    assert robot.grasp(plan).ok
+    sent = node.clients["grasp"].sent[0]
+    assert sent.position == pytest.approx([0.3, 0.0, -0.2]) and sent.yaw == pytest.approx(0.3)
+    assert sent.mass == 0.1 and sent.object_name == "mug"
+
+
+def test_the_adapter_reports_rejections_failures_and_what_it_holds() -> None:
+    robot, node = _bus_robot(
+        grasp=_Client(reject="lateral_out_of_range: y 0.09"),
+        place=_Client(fail="released_early: the object slipped"),
+    )
+    plan = GraspPlan((0.4, 0.0, -0.2), 0.0, "vertical", 0.05, "mug",
+                     BasePose(2.0, 1.0, 0.27, math.pi / 2), (-0.4, 2.0, 0.07))  # fmt: skip
+    out = robot.grasp(plan)
+    assert not out.ok and out.rejected and out.reason.startswith("lateral_out_of_range")
+    out = robot.place((-1.0, 2.0, 0.3))
+    assert not out.ok and not out.rejected and "slipped" in out.reason
+    assert robot.holding() is None  # nothing heard from manipulation yet
+    node.payload.msg = m.Payload(stamp=12.0, mass=0.12, object_name="mug")
+    assert robot.holding() is True
+    node.payload.msg = m.Payload(stamp=13.0, mass=0.0)
+    assert robot.holding() is False
+    node.tracks.msg = m.ObjectTracks(
+        stamp=12.0, ids=[5], labels=["mug"], centroids=[[2.0, 2.0, 0.04]], extents=[[0.1] * 3],
+        confidences=[0.9], observations=[4], last_seen=[12.0], confirmed=[1],
+        map_centroids=[[0.0, 0.0, 0.0]],
+    )  # fmt: skip
+    (seen,) = robot.objects()
+    assert seen.track_id == 5 and seen.confirmed  # odom (2, 2) is map (-1, 2)
+    assert seen.position == pytest.approx((-1.0, 2.0, 0.04))

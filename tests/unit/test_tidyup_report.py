@@ -1,0 +1,110 @@
+"""The tidy-up report: the behavior's record beside the judge's verdict, the table, the
+benchmark's summary over trials."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from quadmanip.common import messages as m
+from quadmanip.sim.scenarios import get_scenario
+from quadmanip.testbench.bench_tidyup import summarize
+from quadmanip.tidyup import TidyReport, TidyRun
+
+pytestmark = pytest.mark.unit
+
+
+def _judge(names: list[str], placed: list[str], valid: bool = True) -> m.JudgeReport:
+    return m.JudgeReport(
+        stamp=100.0,
+        trial_time=100.0,
+        in_place=placed,
+        misplaced=[n for n in names if n not in placed],
+        total=len(names),
+        objects=names,
+        locations=["in_place" if n in placed else "floor" for n in names],
+        notes=["" if n in placed else "not in any place" for n in names],
+        positions=np.zeros((len(names), 3)),
+        rest_s=np.ones(len(names)),
+        valid=valid,
+    )
+
+
+def _scored(judge: m.JudgeReport, progress: object) -> TidyReport:
+    scn = get_scenario("short-0")  # spoon (floor), bowl (table)
+    run = TidyRun(scn, log=None)  # type: ignore[arg-type]
+    run.report.sim_time_s = 90.0
+    run._score(progress, judge)
+    return run.report
+
+
+def _progress(**kw: object) -> SimpleNamespace:
+    base = {
+        "objects": ["spoon", "bowl"],
+        "object_grasped": [True, True],
+        "object_placed": [True, False],
+        "object_time_s": [40.0, float("nan")],
+        "object_failures": ["", "grasp: lateral_out_of_range\nplace: too far"],
+        "drawers_opened": ["drawer_left", "drawer_right", "drawer_top"],
+    }
+    base.update(kw)
+    return SimpleNamespace(**base)
+
+
+def test_the_judge_decides_placed_not_the_robots_belief():
+    rep = _scored(_judge(["spoon", "bowl"], ["bowl"]), _progress())
+    by = {o.name: o for o in rep.objects}
+    # the robot believed the spoon placed; the judge did not see it there
+    assert by["spoon"].placed_by_robot and not by["spoon"].placed
+    assert by["bowl"].placed and not by["bowl"].placed_by_robot
+    assert by["bowl"].failures == ["grasp: lateral_out_of_range", "place: too far"]
+    assert by["spoon"].where == "floor" and by["spoon"].judge_note == "not in any place"
+    assert rep.placed == 1 and rep.drawers_opened == ["drawer_left", "drawer_right", "drawer_top"]
+    s = rep.summary()
+    assert s["objects"] == 2 and s["success_rate"] == 0.5
+    assert s["sim_time_per_placed_object_s"] == 90.0
+
+
+def test_an_invalid_trial_scores_nothing():
+    rep = _scored(_judge(["spoon", "bowl"], ["spoon", "bowl"], valid=False), _progress())
+    assert rep.placed == 0 and not rep.judge_valid
+
+
+def test_objects_the_robot_never_found_are_reported():
+    rep = _scored(
+        _judge(["spoon", "bowl"], []),
+        _progress(
+            objects=[], object_grasped=[], object_placed=[], object_time_s=[], object_failures=[]
+        ),
+    )
+    assert [o.found for o in rep.objects] == [False, False]
+    table = rep.table()
+    assert "spoon" in table and "bowl" in table and "placed 0 of 2" in table
+
+
+def test_summary_over_trials():
+    a = _scored(_judge(["spoon", "bowl"], ["spoon", "bowl"]), _progress()).to_json()
+    b = _scored(_judge(["spoon", "bowl"], ["spoon"]), _progress(drawers_opened=["drawer_left"]))
+    b = b.to_json()
+    a["scenario"], b["scenario"] = "paper-1", "seed-3"
+    s = summarize([a, b])
+    assert s["objects"] == 4 and s["placed"] == 3 and s["success_rate"] == 0.75
+    assert s["paper_placed"] == 2 and s["paper_objects"] == 2
+    assert s["drawers_opened_min"] == 1
+    # 90 s trials: 45 s per object with two placed, 90 s with one -> median 67.5
+    assert s["time_per_object_s_p50"] == pytest.approx(67.5)
+
+
+def test_one_class_seen_twice_counts_once():
+    p = _progress(
+        objects=["spoon", "spoon", "bowl"],
+        object_grasped=[False, True, True],
+        object_placed=[False, True, True],
+        object_time_s=[5.0, 40.0, 30.0],
+        object_failures=["grasp: no_object", "", ""],
+    )
+    rep = _scored(_judge(["spoon", "bowl"], ["spoon", "bowl"]), p)
+    spoon = next(o for o in rep.objects if o.name == "spoon")
+    assert spoon.grasped and spoon.placed_by_robot and spoon.time_s == 45.0
+    assert spoon.failures == ["grasp: no_object"]
