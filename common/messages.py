@@ -806,7 +806,8 @@ class TaskProgress(Message):
     (parallel lists): its class, perception's track id, when it was first seen (robot
     time), whether it was grasped, placed (the task's own claim: the judge decides), given
     up, the robot time spent on it, the failures it cost and their reasons (one line
-    each, ``step: reason``, joined with newlines)."""
+    each, ``step: reason``, joined with newlines) and where it was first seen (map
+    frame, m)."""
 
     stamp: float
     state: str = string(choices=TASK_STATES, default="idle")
@@ -828,12 +829,13 @@ class TaskProgress(Message):
     object_time_s: np.ndarray = array("f8", (None,), nonneg=True, default=np.zeros(0))
     object_attempts: np.ndarray = array("i4", (None,), default=np.zeros(0))
     object_failures: list[str] = string_list(max_len=_MAX_TEXT, default_empty=True)
+    object_positions: np.ndarray = array("f8", (None, 3), default=np.zeros((0, 3)))
 
     def _check(self) -> None:
         _same_rows(
             self, "TaskProgress", len(self.objects), "object_track_ids", "object_found_at",
             "object_grasped", "object_placed", "object_given_up", "object_time_s",
-            "object_attempts", "object_failures",
+            "object_attempts", "object_failures", "object_positions",
         )  # fmt: skip
         if self.elapsed < 0.0 or self.budget < 0.0 or min(self.zones_total, self.failed) < 0:
             raise MessageError("TaskProgress times and counts must be >= 0")

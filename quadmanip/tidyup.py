@@ -27,6 +27,7 @@ import math
 import os
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -59,6 +60,7 @@ class ObjectReport:
     judge_note: str = ""  # why the judge says it is not placed
     time_s: float | None = None  # sim time the behavior spent on it
     failures: list[str] = field(default_factory=list)
+    seen_as: list[str] = field(default_factory=list)  # the classes the robot gave it
 
 
 @dataclass
@@ -183,8 +185,10 @@ class TidyRun:
         budget_s: float | None = None,
         timeout_s: float = 3600.0,
         service_args: dict[str, list[str]] | None = None,
+        stop: threading.Event | None = None,
     ) -> None:
         self.scenario = scenario
+        self.stop = stop or threading.Event()  # set: stop the run (SIGINT, SIGTERM)
         self.log = log
         self.say = say
         self.lockstep = lockstep
@@ -289,6 +293,8 @@ class TidyRun:
         deadline = w0 + START_TIMEOUT_S
         while progress.get() is None:
             self._check_alive()
+            if self.stop.is_set():
+                raise KeyboardInterrupt
             if time.monotonic() > deadline:
                 raise RuntimeError(f"no behavior/progress within {START_TIMEOUT_S:.0f} s")
             time.sleep(0.2)
@@ -311,6 +317,9 @@ class TidyRun:
             if p is not None and p.state in ("done", "failed", "budget", "canceled"):
                 rep.status = "done" if p.state == "done" else p.state
                 rep.reason = p.reason
+                break
+            if self.stop.is_set():
+                rep.status, rep.reason = "interrupted", "stopped by the operator"
                 break
             if wall > self.timeout_s:
                 rep.status, rep.reason = "timeout", f"no end within {self.timeout_s:.0f} s wall"
@@ -352,18 +361,18 @@ class TidyRun:
 
         rep = self.report
         cat = load_catalogue()
-        mine = _objects_of(progress)
+        records = _records_of(progress)
         if judge is not None:
             rep.judge_valid = bool(judge.valid)
             rep.leg_timeouts = int(judge.leg_timeouts)
         rep.drawers_opened = list(getattr(progress, "drawers_opened", []) or [])
         for name in self.scenario.object_names:
             o = ObjectReport(name, cat.objects[name].category, cat.place_of(name))
-            rec = mine.get(name)
-            if rec is not None:
-                o.found, o.grasped = rec["found"], rec["grasped"]
-                o.placed_by_robot, o.time_s = rec["placed"], rec["time_s"]
-                o.failures = rec["failures"]
+            start = next(p for p in self.scenario.objects if p.name == name).position
+            rec = _match(name, (start[0], start[1]), records)
+            o.found, o.grasped = rec["found"], rec["grasped"]
+            o.placed_by_robot, o.time_s = rec["placed"], rec["time_s"]
+            o.failures, o.seen_as = rec["failures"], rec["labels"]
             if judge is not None and name in list(judge.objects):
                 i = list(judge.objects).index(name)
                 o.where, o.judge_note = judge.locations[i], judge.notes[i]
@@ -371,29 +380,46 @@ class TidyRun:
             rep.objects.append(o)
 
 
-def _objects_of(progress: Any) -> dict[str, dict[str, Any]]:
-    """The behavior's per-object record from a ``TaskProgress`` (parallel lists)."""
+#: A behavior record belongs to a scenario object of another class (the detector took a
+#: spoon for a marker) when it was first seen this near the object's starting point (m).
+MATCH_RADIUS_M = 0.35
+
+
+def _records_of(progress: Any) -> list[dict[str, Any]]:
+    """The behavior's per-object records from a ``TaskProgress`` (parallel lists)."""
     if progress is None:
-        return {}
-    out: dict[str, dict[str, Any]] = {}
-    for i, name in enumerate(progress.objects):
+        return []
+    out = []
+    for i, label in enumerate(progress.objects):
         t = float(progress.object_time_s[i])
-        rec = {
-            "found": True,
-            "grasped": bool(progress.object_grasped[i]),
-            "placed": bool(progress.object_placed[i]),
-            "time_s": None if math.isnan(t) else t,
-            "failures": [f for f in progress.object_failures[i].split("\n") if f],
-        }
-        old = out.get(name)
-        if old is not None:  # one class seen as two objects (one is a spurious track)
-            rec["grasped"] = rec["grasped"] or old["grasped"]
-            rec["placed"] = rec["placed"] or old["placed"]
-            times = [v for v in (old["time_s"], rec["time_s"]) if v is not None]
-            rec["time_s"] = sum(times) if times else None
-            rec["failures"] = old["failures"] + rec["failures"]
-        out[name] = rec
+        out.append(
+            {
+                "label": label,
+                "xy": tuple(float(v) for v in progress.object_positions[i][:2]),
+                "grasped": bool(progress.object_grasped[i]),
+                "placed": bool(progress.object_placed[i]),
+                "time_s": None if math.isnan(t) else t,
+                "failures": [f for f in progress.object_failures[i].split("\n") if f],
+            }
+        )
     return out
+
+
+def _match(name: str, start_xy: tuple[float, float], records: list[dict[str, Any]]) -> dict:
+    """Merge the records that are about scenario object ``name``: those of its class, else
+    those first seen near where it started (a misclassified object is still found)."""
+    mine = [r for r in records if r["label"] == name]
+    if not mine:
+        mine = [r for r in records if math.dist(r["xy"], start_xy) < MATCH_RADIUS_M]
+    times = [r["time_s"] for r in mine if r["time_s"] is not None]
+    return {
+        "found": bool(mine),
+        "grasped": any(r["grasped"] for r in mine),
+        "placed": any(r["placed"] for r in mine),
+        "time_s": sum(times) if times else None,
+        "failures": [f for r in mine for f in r["failures"]],
+        "labels": sorted({r["label"] for r in mine}),
+    }
 
 
 def _progress_line(p: Any) -> str:
@@ -460,7 +486,8 @@ def main(argv: list[str] | None = None) -> int:
         f"tidyup: {scenario.name}, {len(scenario.objects)} objects "
         f"({', '.join(scenario.object_names)}); services' output in {log_path}"
     )
-    install_stop_signals()
+    stop = threading.Event()
+    install_stop_signals(stop)
     with open(log_path, "w") as log:
         run = TidyRun(
             scenario,
@@ -471,6 +498,7 @@ def main(argv: list[str] | None = None) -> int:
             budget_s=args.budget_s,
             timeout_s=args.timeout_s,
             service_args=overrides,
+            stop=stop,
         )
         rep = run.run()
     out.write_text(json.dumps(rep.to_json(), indent=2) + "\n")

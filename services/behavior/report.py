@@ -3,6 +3,7 @@ the snapshots the operator sees."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -44,6 +45,11 @@ class ObjectRecord:
     attempts: int = 0
     time_spent: float = 0.0  # s of robot time spent on it (approach to let go)
     failures: list[Failure] = field(default_factory=list)
+    first_position: Point3 = (math.nan, math.nan, math.nan)  # where it was first seen
+
+    def __post_init__(self) -> None:
+        if math.isnan(self.first_position[0]):
+            self.first_position = tuple(self.position)  # type: ignore[assignment]
 
     @property
     def name(self) -> str:
@@ -92,6 +98,7 @@ class ObjectSummary:
     time_spent: float
     attempts: int
     failures: tuple[str, ...]  # "step: reason"
+    first_position: Point3 = (0.0, 0.0, 0.0)  # map frame, where it was first seen
 
 
 @dataclass(frozen=True)

@@ -287,6 +287,7 @@ def task_progress(draw: st.DrawFn) -> m.TaskProgress:
         object_time_s=rows("object_time_s"),
         object_attempts=rows("object_attempts"),
         object_failures=draw(st.lists(text, min_size=n, max_size=n)),
+        object_positions=rows("object_positions"),
     )
 
 

@@ -46,6 +46,7 @@ def _progress(**kw: object) -> SimpleNamespace:
         "object_placed": [True, False],
         "object_time_s": [40.0, float("nan")],
         "object_failures": ["", "grasp: lateral_out_of_range\nplace: too far"],
+        "object_positions": np.array([[2.28, 0.78, 0.0], [2.89, 3.53, 0.4]]),
         "drawers_opened": ["drawer_left", "drawer_right", "drawer_top"],
     }
     base.update(kw)
@@ -103,8 +104,25 @@ def test_one_class_seen_twice_counts_once():
         object_placed=[False, True, True],
         object_time_s=[5.0, 40.0, 30.0],
         object_failures=["grasp: no_object", "", ""],
+        object_positions=np.array([[2.28, 0.78, 0.0], [2.3, 0.8, 0.0], [2.89, 3.53, 0.4]]),
     )
     rep = _scored(_judge(["spoon", "bowl"], ["spoon", "bowl"]), p)
     spoon = next(o for o in rep.objects if o.name == "spoon")
     assert spoon.grasped and spoon.placed_by_robot and spoon.time_s == 45.0
     assert spoon.failures == ["grasp: no_object"]
+
+
+def test_a_misclassified_object_is_matched_by_where_it_was_first_seen():
+    # short-0's spoon starts at (2.28, 0.78): the robot called it a marker and placed it
+    p = _progress(
+        objects=["marker", "bowl"],
+        object_positions=np.array([[2.30, 0.75, 0.0], [2.89, 3.53, 0.4]]),
+    )
+    rep = _scored(_judge(["spoon", "bowl"], ["spoon"]), p)
+    spoon = next(o for o in rep.objects if o.name == "spoon")
+    assert spoon.found and spoon.placed_by_robot and spoon.placed
+    assert spoon.seen_as == ["marker"]
+    far = _progress(
+        objects=["marker", "bowl"], object_positions=np.array([[3.5, 2.0, 0.0], [2.89, 3.53, 0.4]])
+    )
+    assert not _scored(_judge(["spoon", "bowl"], []), far).objects[0].found
