@@ -90,6 +90,10 @@ class ObjectClass:
     long_side: float
 
 
+#: Name prefix of the search "zone" around where a held object fell (not a places-file zone).
+DROP_ZONE = "dropped-at:"
+
+
 def classes_from_catalogue(catalogue: Catalogue) -> dict[str, ObjectClass]:
     """Every catalogue class with its deposit place and size."""
     return {
@@ -162,6 +166,10 @@ class TaskConfig:
     stage_back: float = 0.5
     # A walk that fails this near its goal counts as arrived (the approach goes on).
     stage_accept: float = 0.6
+    # After a drop: look at a drop_look_size square around where the grip was lost, from
+    # drop_look_back behind that spot (the gripper camera sees 0.4-1.4 m ahead).
+    drop_look_back: float = 0.8
+    drop_look_size: float = 1.0
     same_object_radius: float = 0.25  # m: a track of the class this near is the same object
     # m: an object dropped on the way is looked for again in the zones this near its path
     drop_search_margin: float = 1.0
@@ -603,7 +611,7 @@ class TidyTask:
 
     def _go_to_viewpoint(self) -> Step:
         if self.zone is None or self.view_index >= len(self.viewpoints):
-            if self.zone is not None:
+            if self.zone is not None and not self.zone.name.startswith(DROP_ZONE):
                 with self._lock:
                     self.report.zones_searched.append(self.zone.name)
             self.zone = self._next_zone()
@@ -858,6 +866,24 @@ class TidyTask:
         here = self._pose()
         self._search_again_near(self.picked_from or here, here)
         self.target = None
+        self._look_where_it_fell(here)
+
+    def _look_where_it_fell(self, here: Pose2) -> None:
+        """Search the floor around where the grip was lost before any zone: the object
+        lies at the robot's feet (it fell from the gripper there), often outside every
+        search zone (by a deposit place). The zone in progress is searched again later."""
+        if self.zone is not None and not self.zone.name.startswith(DROP_ZONE):
+            self.zones_todo.insert(0, self.zone.name)
+        back = self.cfg.drop_look_back
+        stand = (here[0] - back * math.cos(here[2]), here[1] - back * math.sin(here[2]), here[2])
+        size = (self.cfg.drop_look_size, self.cfg.drop_look_size)
+        self.zone = Place(f"{DROP_ZONE}{here[0]:.2f},{here[1]:.2f}", "search_floor", stand,
+                          (here[0], here[1], 0.0), size)  # fmt: skip
+        self.viewpoints = zone_viewpoints(
+            stand, (here[0], here[1]), size, self.search["search_floor"]
+        )
+        self.view_index = 0
+        self._say(f"looking where it fell ({len(self.viewpoints)} views)")
 
     def _search_again_near(self, a: Sequence[float], b: Sequence[float]) -> None:
         """Queue again the searched zones within ``drop_search_margin`` of segment a-b."""

@@ -76,6 +76,7 @@ class FakeHouse:
         *,
         grasp_failures: dict[str, list[str]] | None = None,
         drop_while_carrying: dict[str, int] | None = None,
+        drop_at_the_end: bool = False,
         sticky: dict[str, int] | None = None,
         seconds_per_walk: float = 8.0,
         localised: bool = True,
@@ -83,6 +84,7 @@ class FakeHouse:
         self.things = {t.track_id: t for t in things}
         self.grasp_failures = {k: list(v) for k, v in (grasp_failures or {}).items()}
         self.drops = dict(drop_while_carrying or {})
+        self.drop_at_the_end = drop_at_the_end  # at the walk's goal, not half way
         self.sticky = dict(sticky or {})  # places that "succeed" but keep the object
         self.walk_s = seconds_per_walk
         self.localised = localised
@@ -133,8 +135,12 @@ class FakeHouse:
         assert goal is not None
         if self.held is not None and self.drops.get(self.held.label, 0) > 0:
             self.drops[self.held.label] -= 1  # it slips out on the way, half-way there
-            half_way = ((self.at[0] + goal[0]) / 2, (self.at[1] + goal[1]) / 2, 0.05)
-            self.held.position = half_way
+            f = 1.0 if self.drop_at_the_end else 0.5
+            fell = (
+                self.at[0] + f * (goal[0] - self.at[0]),
+                self.at[1] + f * (goal[1] - self.at[1]),
+            )
+            self.held.position = (*fell, 0.05)
             self.held = None
         self.at = goal
         self._look()
@@ -431,6 +437,24 @@ def test_an_object_dropped_on_the_way_is_found_again_and_placed() -> None:
     assert [f.reason for f in rec.failures] == ["dropped while carrying"]
     assert _calls(house, "grasp") == ["tomato_soup_can"] * 2
     assert house.things[1].released_in == "tray"
+
+
+def test_after_a_drop_the_robot_looks_where_it_fell_first() -> None:
+    # it slips out at the tray, outside every search zone: only a look there finds it
+    house = FakeHouse(
+        _things()[:1], drop_while_carrying={"tomato_soup_can": 1}, drop_at_the_end=True
+    )
+    report = _task(house).run()
+    rec = _record(report, "tomato_soup_can")
+    assert rec.dropped and rec.placed
+    assert _calls(house, "grasp") == ["tomato_soup_can"] * 2
+    fell = house.things[1]  # placed now; it fell where the carry walk ended
+    walks = [a for a in _calls(house, "navigate_to") if isinstance(a, tuple)]
+    stage = next(i for i, a in enumerate(walks) if math.dist(a[:2], PLACES["tray"].stand[:2]) < 0.6)
+    # the next walk after the carry is to look at the spot, not to a zone far away
+    assert math.dist(walks[stage + 1][:2], walks[stage][:2]) < 1.5
+    assert fell.released_in == "tray"
+    assert not any(z.startswith("dropped") for z in report.zones_searched)
 
 
 def test_a_place_is_checked_from_the_gripper_and_tried_again() -> None:
