@@ -19,7 +19,7 @@ from quadmanip.tidyup import TidyRun
 
 pytestmark = pytest.mark.integration
 
-SCENARIO = "short-2"  # clamp on the floor (a tool: the drawer), cup on the table
+SCENARIO = "short-9"  # tennis ball on the floor (green box), sugar box on the table (tray)
 # a stuck run must not eat the suite: the sim-time budget ends the task, the wall
 # timeout the run
 BUDGET_S = 400.0
