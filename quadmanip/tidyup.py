@@ -25,6 +25,7 @@ import argparse
 import json
 import math
 import os
+import signal
 import sys
 import tempfile
 import threading
@@ -43,6 +44,7 @@ ROBOT_SERVICES = ("locomotion", "manipulation", "perception", "navigation", "beh
 #: The robot must be up and standing within this wall time, or the run fails.
 START_TIMEOUT_S = 240.0
 PRINT_EVERY_S = 5.0  # progress line period on a non-terminal output
+FALL_TILT_DEG = 60.0  # trunk tilt that counts as a fall (scoring)
 
 
 @dataclass
@@ -82,6 +84,8 @@ class TidyReport:
     judge_valid: bool = True
     leg_timeouts: int = 0
     restarts: dict[str, int] = field(default_factory=dict)
+    faults: list[str] = field(default_factory=list)  # the faults injected (fault trials)
+    falls: int = 0  # the trunk tipped over (ground truth, scoring)
 
     @property
     def placed(self) -> int:
@@ -136,6 +140,12 @@ class TidyReport:
             f"(judge), drawers opened {len(self.drawers_opened)}, status {self.status}"
             + (f" ({self.reason})" if self.reason else "")
         )
+        if self.faults or any(self.restarts.values()) or self.falls:
+            lines.append(
+                f"faults: {'; '.join(self.faults) or 'none'}; restarts: "
+                + (", ".join(f"{k} {v}" for k, v in self.restarts.items() if v) or "none")
+                + f"; falls: {self.falls}"
+            )
         per = s["sim_time_per_placed_object_s"]
         lines.append(
             f"sim time {self.sim_time_s:.0f} s"
@@ -186,8 +196,14 @@ class TidyRun:
         timeout_s: float = 3600.0,
         service_args: dict[str, list[str]] | None = None,
         stop: threading.Event | None = None,
+        faults: list[tuple[str, float]] | None = None,
     ) -> None:
         self.scenario = scenario
+        # (service, sim seconds after the task's start): SIGKILL it then (fault trials)
+        self.faults = sorted(faults or [], key=lambda f: f[1])
+        for name, _ in self.faults:
+            if name not in ROBOT_SERVICES:
+                raise ValueError(f"fault: {name!r} is not one of {', '.join(ROBOT_SERVICES)}")
         self.stop = stop or threading.Event()  # set: stop the run (SIGINT, SIGTERM)
         self.log = log
         self.say = say
@@ -202,7 +218,9 @@ class TidyRun:
         self.launcher: Launcher | None = None
         self.bus: Bus | None = None
         self._tmp: tempfile.TemporaryDirectory[str] | None = None
-        self._cpu0: dict[str, float] = {}
+        self._cpu_done: dict[str, float] = {}  # CPU seconds of children's earlier lives
+        self._cpu_last: dict[str, tuple[int, float]] = {}  # name -> (pid, CPU seconds)
+        self._tilted = False
 
     # ------------------------------------------------------------------ stack
     def _service_args(self, scenario_file: Path) -> dict[str, list[str]]:
@@ -253,13 +271,23 @@ class TidyRun:
             self._tmp = None
 
     def _cpu(self) -> dict[str, float]:
+        """CPU seconds per child so far, over every life of a restarted child (the last
+        reading of a dead process counts; sampled about once a second)."""
         assert self.launcher is not None
         out = {}
         for c in self.launcher.children:
             if c.proc is not None:
-                s = _cpu_seconds(c.proc.pid)
-                if s is not None:
-                    out[c.name] = s
+                pid = c.proc.pid
+                last = self._cpu_last.get(c.name)
+                if last is not None and last[0] != pid:  # restarted since the last reading
+                    self._cpu_done[c.name] = self._cpu_done.get(c.name, 0.0) + last[1]
+                    last = None
+                now = _cpu_seconds(pid)
+                if now is not None:
+                    self._cpu_last[c.name] = (pid, now)
+                elif last is not None:
+                    now = last[1]
+                out[c.name] = self._cpu_done.get(c.name, 0.0) + (now or 0.0)
         return out
 
     def _say(self, text: str) -> None:
@@ -298,16 +326,24 @@ class TidyRun:
             if time.monotonic() > deadline:
                 raise RuntimeError(f"no behavior/progress within {START_TIMEOUT_S:.0f} s")
             time.sleep(0.2)
-        self._cpu0, t_cpu0 = self._cpu(), time.monotonic()
+        base = self.bus.latest("sim/gt/base")
+        cpu0, t_cpu0 = self._cpu(), time.monotonic()
         c0 = clock.get()
         sim0 = float(c0.stamp) if c0 is not None else 0.0
         w_run0 = time.monotonic()
-        last_line, last_print = "", 0.0
+        last_line, last_print, last_cpu = "", 0.0, 0.0
+        faults = list(self.faults)
         while True:
             self._check_alive()
             p = progress.get()
             c = clock.get()
             now_sim = float(c.stamp) if c is not None else 0.0
+            if faults and now_sim - sim0 >= faults[0][1]:
+                self._kill(faults.pop(0)[0], now_sim)
+            self._count_falls(base.get())
+            if time.monotonic() - last_cpu > 1.0:  # follow restarted children's CPU
+                self._cpu()
+                last_cpu = time.monotonic()
             wall = time.monotonic() - w0
             rtf = (now_sim - sim0) / max(time.monotonic() - w_run0, 1e-6)
             line = _progress_line(p)
@@ -328,7 +364,10 @@ class TidyRun:
         cpu1, t_cpu1 = self._cpu(), time.monotonic()
         span = max(t_cpu1 - t_cpu0, 1e-6)
         rep.cpu_cores = {
-            k: round((cpu1[k] - self._cpu0.get(k, 0.0)) / span, 3) for k in cpu1 if k in self._cpu0
+            k: round((cpu1[k] - cpu0.get(k, 0.0)) / span, 3) for k in cpu1 if k in cpu0
+        }
+        rep.restarts = {
+            c.name: c.tracker.total for c in self.launcher.children if c.tracker is not None
         }
         rep.robot_services_cpu_cores = round(
             sum(v for k, v in rep.cpu_cores.items() if k in ROBOT_SERVICES), 3
@@ -350,11 +389,33 @@ class TidyRun:
         return judge.get()
 
     def _check_alive(self) -> None:
+        """The launcher's restart policy (configs/launch.toml [restart]): a child that
+        dies is restarted; a crash loop (or the router dying for good) ends the run."""
         assert self.launcher is not None
-        dead = self.launcher.dead_child()
-        if dead is not None:
-            code = dead.proc.returncode if dead.proc else "?"
-            raise RuntimeError(f"{dead.name} exited (code {code})")
+        ended = self.launcher.supervise(time.monotonic())
+        if ended is not None:
+            raise RuntimeError(ended[1])
+
+    def _kill(self, name: str, now_sim: float) -> None:
+        """A fault: SIGKILL ``name`` (the launcher restarts it)."""
+        assert self.launcher is not None
+        child = next(c for c in self.launcher.children if c.name == name)
+        if child.proc is not None and child.proc.poll() is None:
+            os.kill(child.proc.pid, signal.SIGKILL)
+            self.report.faults.append(f"{name} killed at sim {now_sim:.1f} s")
+            self._say(f"fault: SIGKILL {name} (pid {child.proc.pid}) at sim {now_sim:.1f} s")
+
+    def _count_falls(self, gt: m.GroundTruthPoses | None) -> None:
+        """A fall: the trunk tipped beyond FALL_TILT_DEG (lying down level, as damped legs
+        let it, is not one). Ground truth: scoring only."""
+        if gt is None or "base" not in gt.names:
+            return
+        q = gt.orientations[list(gt.names).index("base")]  # w, x, y, z
+        up_z = 1.0 - 2.0 * (float(q[1]) ** 2 + float(q[2]) ** 2)  # body z-axis . world z
+        tilted = up_z < math.cos(math.radians(FALL_TILT_DEG))
+        if tilted and not self._tilted:
+            self.report.falls += 1
+        self._tilted = tilted
 
     def _score(self, progress: Any, judge: m.JudgeReport | None) -> None:
         from quadmanip.sim.world.objects import load_catalogue
@@ -429,6 +490,24 @@ def _progress_line(p: Any) -> str:
 
 
 # --------------------------------------------------------------------------- command
+def parse_faults(items: list[str]) -> list[tuple[str, float]]:
+    """``["locomotion@90"]`` -> ``[("locomotion", 90.0)]`` (a robot service, seconds >= 0)."""
+    out = []
+    for item in items:
+        name, at, t = item.partition("@")
+        try:
+            when = float(t)
+        except ValueError:
+            when = -1.0
+        if not at or name not in ROBOT_SERVICES or not when >= 0.0:
+            raise ValueError(
+                f"--kill {item!r}: expected SERVICE@SECONDS with SERVICE one of "
+                f"{', '.join(ROBOT_SERVICES)}"
+            )
+        out.append((name, when))
+    return out
+
+
 def service_overrides(items: list[str]) -> dict[str, list[str]]:
     """``["behavior.task.max_attempts=3"]`` -> ``{"behavior": ["--set", "task.max_attempts=3"]}``."""
     out: dict[str, list[str]] = {}
@@ -468,9 +547,18 @@ def main(argv: list[str] | None = None) -> int:
         metavar="SERVICE.KEY=VALUE",
         help="a config override for one service, e.g. behavior.drawers.places=[] (repeatable)",
     )
+    ap.add_argument(
+        "--kill",
+        action="append",
+        default=[],
+        metavar="SERVICE@SECONDS",
+        help="fault trial: SIGKILL a robot service this many sim seconds into the task "
+        "(the launcher restarts it), e.g. locomotion@90 (repeatable)",
+    )
     args = ap.parse_args(argv)
     try:
         overrides = service_overrides(args.set)
+        faults = parse_faults(args.kill)
     except ValueError as exc:
         print(f"quadmanip tidyup: {exc}", file=sys.stderr)
         return 2
@@ -499,6 +587,7 @@ def main(argv: list[str] | None = None) -> int:
             timeout_s=args.timeout_s,
             service_args=overrides,
             stop=stop,
+            faults=faults,
         )
         rep = run.run()
     out.write_text(json.dumps(rep.to_json(), indent=2) + "\n")
@@ -515,4 +604,12 @@ if __name__ == "__main__":  # pragma: no cover
     raise SystemExit(main())
 
 
-__all__ = ["ROBOT_SERVICES", "ObjectReport", "TidyReport", "TidyRun", "main", "service_overrides"]
+__all__ = [
+    "ROBOT_SERVICES",
+    "ObjectReport",
+    "TidyReport",
+    "TidyRun",
+    "main",
+    "parse_faults",
+    "service_overrides",
+]

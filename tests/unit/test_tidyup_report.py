@@ -126,3 +126,21 @@ def test_a_misclassified_object_is_matched_by_where_it_was_first_seen():
         objects=["marker", "bowl"], object_positions=np.array([[3.5, 2.0, 0.0], [2.89, 3.53, 0.4]])
     )
     assert not _scored(_judge(["spoon", "bowl"], []), far).objects[0].found
+
+
+def test_command_line_faults_and_overrides():
+    from quadmanip.tidyup import parse_faults, service_overrides
+
+    assert parse_faults(["locomotion@90", "perception@12.5"]) == [
+        ("locomotion", 90.0),
+        ("perception", 12.5),
+    ]
+    for bad in ("sim@10", "locomotion", "locomotion@-1", "navigation@soon"):
+        with pytest.raises(ValueError, match="SERVICE@SECONDS"):
+            parse_faults([bad])
+    assert service_overrides(["behavior.drawers.places=[]", "sim.sensors.lidar.rate=5"]) == {
+        "behavior": ["--set", "drawers.places=[]"],
+        "sim": ["--set", "sensors.lidar.rate=5"],
+    }
+    with pytest.raises(ValueError, match="SERVICE.KEY=VALUE"):
+        service_overrides(["router.x=1"])
