@@ -444,6 +444,9 @@ class TidyRun:
 #: A behavior record belongs to a scenario object of another class (the detector took a
 #: spoon for a marker) when it was first seen this near the object's starting point (m).
 MATCH_RADIUS_M = 0.35
+#: A record of the object's own class counts when first seen this near its start (m); a
+#: track of that class elsewhere is a false detection (or another object of the class).
+SAME_CLASS_RADIUS_M = 1.0
 
 
 def _records_of(progress: Any) -> list[dict[str, Any]]:
@@ -467,9 +470,14 @@ def _records_of(progress: Any) -> list[dict[str, Any]]:
 
 
 def _match(name: str, start_xy: tuple[float, float], records: list[dict[str, Any]]) -> dict:
-    """Merge the records that are about scenario object ``name``: those of its class, else
-    those first seen near where it started (a misclassified object is still found)."""
-    mine = [r for r in records if r["label"] == name]
+    """Merge the records that are about scenario object ``name``: those of its class first
+    seen near where it started, else any first seen right there (a misclassified object
+    is still found)."""
+    mine = [
+        r
+        for r in records
+        if r["label"] == name and math.dist(r["xy"], start_xy) < SAME_CLASS_RADIUS_M
+    ]
     if not mine:
         mine = [r for r in records if math.dist(r["xy"], start_xy) < MATCH_RADIUS_M]
     times = [r["time_s"] for r in mine if r["time_s"] is not None]

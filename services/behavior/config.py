@@ -33,6 +33,16 @@ class NodeConfig:
     approach_tolerance_xy: float = 0.015  # m
     approach_tolerance_yaw: float = 0.03  # rad
     holding_min_mass: float = 0.005  # kg: a payload above this means the gripper holds something
+    # Restarts (service_watch.py): a required service whose heartbeats stop for this long
+    # (wall s) counts as gone, as one whose liveliness token vanished; 0: tokens only.
+    # Generous: a loaded machine delays heartbeats, and a false alarm cuts requests short.
+    heartbeat_timeout: float = 15.0
+    # A restart of these services ends every request in flight, not only their own: when
+    # locomotion dies the legs are damped and the robot lies down, whatever it was doing.
+    interrupt_all_on: tuple[str, ...] = ("locomotion",)
+    # s (wall) for locomotion to stand the robot up again after a restart (righting itself
+    # from a side included); lockstep on 2 cores runs at a fifth of real time
+    stand_timeout: float = 120.0
 
 
 @dataclass(frozen=True)

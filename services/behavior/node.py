@@ -9,11 +9,13 @@ The task itself (:mod:`.tidy_task`) is transport-free; this node gives it a
 * inputs: ``navigation/pose`` (the map pose and map->odom), ``perception/objects`` (the
   object memory), ``locomotion/odometry`` (the base in odom: manipulation's goals are in
   the level body frame), ``locomotion/payload`` (what the gripper holds, as manipulation
-  told locomotion), ``locomotion/health`` (standing?). Never anything under ``sim/gt``.
+  told locomotion), ``locomotion/health`` (standing?), ``*/heartbeat`` and the liveliness
+  tokens ``*/alive`` (which services run). Never anything under ``sim/gt``.
 
 Outputs: ``behavior/progress`` (:class:`~quadmanip.common.messages.TaskProgress`, at every
 step change and every ``progress_period``; ``idle`` before the first task) and
-``locomotion/mode`` (``stand``, once, when the robot lies damped before a task).
+``locomotion/mode`` (``stand`` when the robot lies damped before a task or after
+locomotion restarted; ``recover`` first when it is tripped or lies on a side).
 
 Action (server): ``tidy_up`` (``TidyUpGoal``: a class filter and a time budget; the
 result is the final ``TaskProgress``). With ``[node] start_on_launch`` the node runs one
@@ -21,7 +23,16 @@ tidy-up on its own at start (what ``quadmanip tidyup`` and ``quadmanip up`` rely
 goal while a task runs is rejected ``busy``.
 
 Before a task starts the node waits (``start_timeout``, wall) until the required services
-are alive, locomotion stands and navigation has localised the robot.
+run, locomotion stands and navigation has localised the robot.
+
+Restarts (:mod:`.service_watch`): the launcher restarts a service that dies. The node
+follows the required services' liveliness tokens and heartbeats; a request whose service
+went away (or any request when locomotion went away: the robot lies down) is cancelled and
+ends at once with ``Outcome.interrupted``, instead of waiting out ``action_timeout`` for
+a result that the new process will never send; one to a service that does not run is not
+sent. Readings from before a restart are not trusted after it: locomotion's health (until
+it stands again), navigation's pose (``localised``), manipulation's payload (``holding``
+is None until it speaks again) and, once the task forgets them, perception's tracks.
 
 Threads: the task runs in its own thread (the action's, or the launch thread) and blocks
 in one request at a time; Zenoh callbacks only fill latest-value caches; the control loop
@@ -33,12 +44,14 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from quadmanip.common import messages as m
 from quadmanip.common.actions import ActionCanceled, ActionClient, ActionFailed, GoalHandle
+from quadmanip.common.bus import LatestCache
 from quadmanip.common.config import CONFIG_DIR
 from quadmanip.common.object_catalogue import load_catalogue
 from quadmanip.common.places import load_places
@@ -58,6 +71,7 @@ from quadmanip.services.behavior.frames import (
 )
 from quadmanip.services.behavior.report import Progress
 from quadmanip.services.behavior.robot_api import GraspPlan, HandlePlan, Outcome, SeenObject
+from quadmanip.services.behavior.service_watch import ServiceWatch, stand_command
 from quadmanip.services.behavior.tidy_task import (
     TidyTask,
     classes_from_catalogue,
@@ -88,6 +102,15 @@ def resolve_places(name: str) -> Path:
     """A places file by path, else under configs/ (``maps/house.places.toml``)."""
     p = Path(name)
     return p if p.is_file() else CONFIG_DIR / name
+
+
+def fresh(cache: LatestCache[Any], since: float) -> Any:
+    """The cache's newest message if it arrived at or after wall time ``since``, else None
+    (a reading from before a service's restart)."""
+    age = cache.age
+    if age is None or time.monotonic() - age < since:
+        return None
+    return cache.get()
 
 
 def progress_message(p: Progress, stamp: float) -> m.TaskProgress:
@@ -135,6 +158,9 @@ class BusRobot:
         self.node = node
         self.cfg = node.config.node
         self.cancelled = cancelled
+        self.watch: ServiceWatch = node.watch
+        # robot time before which perception's tracks are not trusted (forget_objects)
+        self.objects_since = -math.inf
 
     # ------------------------------------------------------------------ state
     def now(self) -> float:
@@ -182,23 +208,98 @@ class BusRobot:
                 confidence=float(tracks.confidences[i]),
             )
             for i in range(len(tracks.labels))
+            if float(tracks.last_seen[i]) >= self.objects_since
         ]
 
     def holding(self) -> bool | None:
-        payload = self.node.payload.get()
+        since = -math.inf
+        if self.watch.outages().get("manipulation", 0) > 0:
+            # a restarted manipulation does not know the grip yet: only what it says now
+            since = self.watch.running_since("manipulation")
+        payload = fresh(self.node.payload, since)
         if payload is None:
             return None
         return float(payload.mass) > self.cfg.holding_min_mass
 
+    # ------------------------------------------------------------------ services
+    def outages(self) -> dict[str, int]:
+        return self.watch.outages()
+
+    def wait_for_services(self, services: Collection[str], timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        while not all(self.watch.running(s) for s in services):
+            if self.cancelled() or time.monotonic() > deadline:
+                return False
+            time.sleep(0.05)
+        return True
+
+    def stand_up(self) -> Outcome:
+        """Ask for ``stand`` (or ``recover``, :func:`.service_watch.stand_command`) every
+        ``STAND_EVERY_S`` until a health message from locomotion's current run says it
+        stands; at most ``stand_timeout`` (wall)."""
+        deadline = time.monotonic() + self.cfg.stand_timeout
+        t_asked = -math.inf
+        h = None
+        while True:
+            if not self.watch.running("locomotion"):
+                return Outcome(False, "locomotion is not running", interrupted="locomotion")
+            h = fresh(self.node.health, self.watch.running_since("locomotion"))
+            if h is not None:
+                if h.state != "tripped" and h.phase in self.cfg.standing_phases:
+                    return Outcome(True)
+                mode = stand_command(h.state, h.phase, bool(h.upright))
+                if mode is not None and time.monotonic() - t_asked > STAND_EVERY_S:
+                    self.node.pub_mode.publish(m.LocomotionMode(stamp=self.now(), mode=mode))
+                    t_asked = time.monotonic()
+            if self.cancelled():
+                return Outcome(False, "cancelled")
+            if time.monotonic() > deadline:
+                said = "no health" if h is None else f"{h.state}/{h.phase} {h.reason}".strip()
+                return Outcome(False, f"not standing after {self.cfg.stand_timeout:.0f} s ({said})")
+            time.sleep(0.05)
+
+    def localised(self) -> bool:
+        if not self.watch.running("navigation"):
+            return False
+        mp = fresh(self.node.map_pose, self.watch.running_since("navigation"))
+        return mp is not None and mp.status in ("localized", "mapping")
+
+    def forget_objects(self) -> None:
+        self.objects_since = self.now()
+
     # ------------------------------------------------------------------ requests
+    def _lost(self, services: Collection[str], before: dict[str, int]) -> str:
+        """The first of ``services`` that does not run now or went away since ``before``
+        (outage counts), "" when none."""
+        now = self.watch.outages()
+        for s in sorted(services):
+            if not self.watch.running(s) or now.get(s, 0) != before.get(s, 0):
+                return s
+        return ""
+
     def _act(self, action: str, goal: m.Message) -> tuple[Outcome, m.Message | None]:
-        """Send ``goal`` and wait for its end (cancelled with the task)."""
+        """Send ``goal`` and wait for its end (cancelled with the task, or cut short when
+        its service or one of ``interrupt_all_on`` goes away)."""
+        service = CLIENTS[action]
+        depends = {service, *self.cfg.interrupt_all_on} & set(self.watch.services)
+        before = self.watch.outages()
+        gone = self._lost(depends, before)
+        if gone:  # not sent: nobody would answer it (or it would run on a robot lying down)
+            return Outcome(False, f"{gone} is not running", interrupted=gone), None
         handle = self.node.clients[action].send_goal(goal, timeout=self.cfg.goal_timeout)
         if not handle.accepted:
+            gone = self._lost(depends, before)
+            if gone:
+                return Outcome(False, f"{action}: {gone} went away", interrupted=gone), None
             return Outcome(False, f"{handle.reason or 'rejected'}", rejected=True), None
         deadline = time.monotonic() + self.cfg.action_timeout
         res = None
         while res is None:
+            gone = self._lost(depends, before)
+            if gone:
+                # its server may be gone with the process: a short cancel, no waiting
+                handle.cancel(timeout=0.5)
+                return Outcome(False, f"{action}: {gone} went away", interrupted=gone), None
             if self.cancelled() or time.monotonic() > deadline:
                 handle.cancel()
                 res = handle.result(timeout=2.0)
@@ -321,6 +422,7 @@ class BehaviorNode(Service):
         Input("locomotion/odometry", latest_only=True, doc="base in odom: the body frame"),
         Input("locomotion/payload", latest_only=True, doc="what the gripper holds"),
         Input("locomotion/health", latest_only=True, doc="standing? tripped?"),
+        Input("*/heartbeat", doc="which services run, and when one restarted"),
     )
     outputs = (
         Output("behavior/progress", doc="the task's step and per-object record"),
@@ -347,6 +449,11 @@ class BehaviorNode(Service):
         self.health = self.latest("locomotion/health")
         self.pub_progress = self.publisher("behavior/progress")
         self.pub_mode = self.publisher("locomotion/mode")
+        self.watch = ServiceWatch(cfg.node.required_services, cfg.node.heartbeat_timeout)
+        self.bus.watch_liveliness(
+            lambda service, alive: self.watch.liveliness(service, alive, time.monotonic())
+        )
+        self.subscribe("*/heartbeat", self._on_heartbeat)
         self.clients: dict[str, ActionClient] = {
             action: self.bus.action_client(service, action) for action, service in CLIENTS.items()
         }
@@ -363,6 +470,9 @@ class BehaviorNode(Service):
                       start_on_launch=cfg.node.start_on_launch)  # fmt: skip
         self.set_state("running")
 
+    def _on_heartbeat(self, msg: m.Heartbeat) -> None:
+        self.watch.heartbeat(msg.service, int(msg.seq), msg.state, time.monotonic())
+
     # ------------------------------------------------------------------ progress
     def _publish(self, p: Progress) -> None:
         self.pub_progress.publish(progress_message(p, self.bus.clock()))
@@ -373,7 +483,14 @@ class BehaviorNode(Service):
         self._publish(p)
 
     def step(self) -> None:
-        """Progress about once a second between step changes (and ``idle`` before)."""
+        """Services gone silent; progress about once a second between step changes (and
+        ``idle`` before)."""
+        self.watch.tick(time.monotonic())
+        for t in self.watch.drain():
+            if t.what == "back":
+                self.log.info("service running", service=t.service)
+            else:
+                self.log.warning("service went away", service=t.service, why=t.why)
         if time.monotonic() - self.t_published < self.config.node.progress_period:
             return
         task = self.task
@@ -386,12 +503,14 @@ class BehaviorNode(Service):
         deadline = time.monotonic() + nc.start_timeout
         t_stand = -math.inf
         while True:
-            missing = sorted(set(nc.required_services) - self.bus.alive_services(0.5))
+            missing = sorted(set(nc.required_services) & self.watch.not_running())
             h = self.health.get()
             standing = h is not None and h.state != "tripped" and h.phase in nc.standing_phases
-            if h is not None and h.phase in ("damp", "sit") and h.state != "tripped":
-                if time.monotonic() - t_stand > STAND_EVERY_S:  # lying damped: stand up
-                    self.pub_mode.publish(m.LocomotionMode(stamp=self.bus.clock(), mode="stand"))
+            # lying damped: stand up (a trip at the start is a person's to clear: not here)
+            if h is not None and h.state != "tripped":
+                mode = stand_command(h.state, h.phase, bool(h.upright))
+                if mode is not None and time.monotonic() - t_stand > STAND_EVERY_S:
+                    self.pub_mode.publish(m.LocomotionMode(stamp=self.bus.clock(), mode=mode))
                     t_stand = time.monotonic()
             mp = self.map_pose.get()
             localised = mp is not None and mp.status in ("localized", "mapping")

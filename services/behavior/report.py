@@ -42,10 +42,14 @@ class ObjectRecord:
     given_up: bool = False
     dropped: bool = False
     release_seen: bool = False  # a track of the class was seen at the release point
-    attempts: int = 0
+    attempts: int = 0  # failures that count against the give-up rule
+    restarts: int = 0  # times a service's restart interrupted the work on it
     time_spent: float = 0.0  # s of robot time spent on it (approach to let go)
     failures: list[Failure] = field(default_factory=list)
     first_position: Point3 = (math.nan, math.nan, math.nan)  # where it was first seen
+    # which life of perception's memory track_id belongs to: a restarted perception (or a
+    # restarted odom frame) numbers its tracks afresh, so an old id names nothing now
+    track_epoch: int = 0
 
     def __post_init__(self) -> None:
         if math.isnan(self.first_position[0]):

@@ -3,10 +3,18 @@
 The node implements it over the other services' actions and topics
 (:class:`~quadmanip.services.behavior.node.BusRobot`); the unit tests with a simulated
 house. Positions are in the ``map`` frame unless a field says otherwise.
+
+The robot's services can die and be restarted by the launcher in the middle of a task.
+:meth:`RobotApi.outages` counts, per service, how often it stopped running; a request to a
+service that went away (or, for every request, locomotion: the robot lies down) ends at
+once with ``Outcome.interrupted`` naming it. The rest is what the task needs to get going
+again: :meth:`RobotApi.wait_for_services`, :meth:`RobotApi.stand_up`,
+:meth:`RobotApi.localised` and :meth:`RobotApi.forget_objects`.
 """
 
 from __future__ import annotations
 
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -18,11 +26,13 @@ __all__ = ["GraspPlan", "HandlePlan", "Outcome", "RobotApi", "SeenObject"]
 @dataclass(frozen=True)
 class Outcome:
     """How one request to the robot ended: ``ok``, else why (``rejected``: refused before
-    anything moved, e.g. a grasp out of reach)."""
+    anything moved, e.g. a grasp out of reach; ``interrupted``: the service that went away
+    while it ran, or before it could be sent)."""
 
     ok: bool
     reason: str = ""
     rejected: bool = False
+    interrupted: str = ""
 
 
 @dataclass(frozen=True)
@@ -83,7 +93,34 @@ class RobotApi(Protocol):
         ...
 
     def holding(self) -> bool | None:
-        """Whether the gripper holds something (None: not known yet)."""
+        """Whether the gripper holds something (None: not known, e.g. since manipulation
+        restarted)."""
+        ...
+
+    # ------------------------------------------------------------------ services
+    def outages(self) -> Mapping[str, int]:
+        """Per watched service, how many times it stopped running (died, was killed, went
+        silent) since the node started; a restart under way counts already."""
+        ...
+
+    def wait_for_services(self, services: Collection[str], timeout: float) -> bool:
+        """Block until every one of ``services`` runs again (True), or ``timeout`` s of wall
+        time passed (False): robot time may stand still meanwhile (a lockstep sim waits for
+        locomotion)."""
+        ...
+
+    def stand_up(self) -> Outcome:
+        """Have locomotion stand the robot up (``recover`` first when it is tripped or lies
+        on a side) and block until it stands."""
+        ...
+
+    def localised(self) -> bool:
+        """Navigation reports a settled pose (localised, or mapping) from its current run."""
+        ...
+
+    def forget_objects(self) -> None:
+        """From now on, :meth:`objects` leaves out what perception last saw before now (its
+        memory is gone, or the odom frame it was kept in was restarted)."""
         ...
 
     def navigate_to(self, place: str = "", pose: Pose2 | None = None) -> Outcome:

@@ -1,3 +1,4 @@
+
 """The tidy-up task (paper Sections 5 and 7.2) as an explicit state machine.
 
 The robot opens the left, right and top drawers (Section 7.2; the tools' drawer is pulled
@@ -25,6 +26,28 @@ in view, another stance for a place out of reach. Every failure is recorded with
 reason and counts against the object; after ``max_attempts`` the object is given up, so
 one stubborn object cannot eat the trial.
 
+Restarts. Any of the robot's services may die and be restarted by the launcher in the
+middle of a task. The task notices it through :meth:`.robot_api.RobotApi.outages` (at
+every step change, before every request, and when a request fails: the node ends a
+request to a service that went away at once, and every request when locomotion went
+away). Then it waits until the service runs again and puts things back in order:
+
+* locomotion: the legs were damped and the robot lies down: stand up (``recover`` first
+  when tripped); its odom frame started again, so the object memory's positions and any
+  grasp plan are void (forgotten, as for perception) and the pose is checked again;
+* navigation: wait until it reports a settled pose again, near where the robot was;
+* perception: its object memory is empty: every object not yet finished is looked for
+  again (the zone in progress from the first viewpoint that sees one, searched zones
+  that hold one queued again, a look at any lying outside every zone);
+* manipulation: the arm's state is unknown: it moves to a known posture first.
+
+Then the held object is checked (the gripper may have lost it: dropped, searched for) and
+the current object is taken up again from a sensible step: carried on when held,
+approached again, or looked for again when the memory was lost. A restart is recorded as
+the object's failure with its reason ("locomotion restarted"), but only after
+``restart_free`` of them does one count against ``max_attempts``: a restart is not the
+object's fault, and one must never make the task give an object up.
+
 The task talks to the robot only through :class:`.robot_api.RobotApi` (the node
 implements it over the other services' actions and topics; the unit tests with a
 simulated house). It reads no ground truth: what it knows is the places file, the object
@@ -36,14 +59,14 @@ from __future__ import annotations
 
 import math
 import threading
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass
 from enum import Enum
 from typing import Literal
 
 from quadmanip.common.object_catalogue import Catalogue
 from quadmanip.common.places import Place
-from quadmanip.services.behavior.coverage import SearchConfig, zone_viewpoints
+from quadmanip.services.behavior.coverage import SearchConfig, sees, zone_viewpoints
 from quadmanip.services.behavior.frames import Point3, Pose2, wrap
 from quadmanip.services.behavior.report import (
     DrawerRecord,
@@ -55,6 +78,7 @@ from quadmanip.services.behavior.report import (
 )
 from quadmanip.services.behavior.robot_api import (
     GraspPlan,
+    HandlePlan,
     Outcome,
     RobotApi,
     SeenObject,
@@ -92,6 +116,25 @@ class ObjectClass:
 
 #: Name prefix of the search "zone" around where a held object fell (not a places-file zone).
 DROP_ZONE = "dropped-at:"
+#: Name prefix of a look at an object lying outside every zone, after the memory was lost.
+RELOOK_ZONE = "relook-at:"
+#: A rejection of manipulation's place: it believes the gripper is empty.
+NOT_HOLDING = "not_holding"
+
+
+#: Restarts that void perception's object memory: its own, and locomotion's (the odom frame
+#: the memory is kept in starts again at the new process's origin).
+MEMORY_LOST_BY = frozenset({"locomotion", "perception"})
+#: Restarts after which the map pose is checked again: navigation's own (its filter starts
+#: again), and locomotion's (the odometry it follows jumped).
+POSE_LOST_BY = frozenset({"locomotion", "navigation"})
+#: Rounds of recovery when services keep going away while the task recovers.
+RECOVERY_ROUNDS = 4
+
+
+def _synthetic(zone: str) -> bool:
+    """A zone the task made up (a look around a spot), not one of the places file."""
+    return zone.startswith((DROP_ZONE, RELOOK_ZONE))
 
 
 def classes_from_catalogue(catalogue: Catalogue) -> dict[str, ObjectClass]:
@@ -178,6 +221,14 @@ class TaskConfig:
     place_step: float = 0.05  # m stepped when a place is out of reach
     verify_radius: float = 0.2  # m: a track of the class this near the release point saw it
     let_go_wait: float = 1.0  # s for the gripper to report empty after a place
+    # Restarts of the robot's services (module docstring).
+    restart_timeout: float = 120.0  # s (wall) for a service that went away to run again
+    restart_free: int = 2  # restarts an object may suffer before one counts as a failure
+    relocalise_timeout: float = 30.0  # s for a settled pose after a restart
+    # m: the pose after a restart is trusted at once this near the one before (the robot
+    # did not walk meanwhile); farther, it is given relocalise_timeout to settle
+    relocalise_tolerance: float = 0.5
+    holding_wait: float = 2.0  # s for the gripper's state after a restart
 
 
 class Step(Enum):
@@ -208,6 +259,109 @@ class _Probe:
 
 class _Stop(Exception):
     """Raised inside a step when the budget is spent or the task is cancelled."""
+
+
+class _Interrupted(Exception):
+    """Raised inside a step when services went away (their names in ``services``): the
+    step is abandoned where it stands, and the loop recovers (:meth:`TidyTask._after_restart`)."""
+
+    def __init__(self, services: Collection[str]) -> None:
+        super().__init__(", ".join(sorted(services)))
+        self.services = frozenset(services)
+
+
+class _GuardedRobot:
+    """The robot as the steps see it: a request is not sent while a restart is pending,
+    and one that fails during a restart interrupts the step (:class:`_Interrupted`)
+    instead of counting as the object's failure. Everything else passes through."""
+
+    def __init__(self, robot: RobotApi, pending: Callable[[], set[str]]) -> None:
+        self._r = robot
+        self._pending = pending
+
+    def _before(self) -> None:
+        pending = self._pending()
+        if pending:
+            raise _Interrupted(pending)
+
+    def _after(self, out: Outcome) -> Outcome:
+        if not out.ok:
+            pending = self._pending()
+            if out.interrupted:
+                pending.add(out.interrupted)
+            if pending:
+                raise _Interrupted(pending)
+        return out
+
+    # pass-through
+    def now(self) -> float:
+        return self._r.now()
+
+    def wait(self, seconds: float) -> None:
+        self._r.wait(seconds)
+
+    def pose(self) -> Pose2 | None:
+        return self._r.pose()
+
+    def objects(self) -> list[SeenObject]:
+        return self._r.objects()
+
+    def holding(self) -> bool | None:
+        return self._r.holding()
+
+    def outages(self) -> Mapping[str, int]:
+        return self._r.outages()
+
+    def wait_for_services(self, services: Collection[str], timeout: float) -> bool:
+        return self._r.wait_for_services(services, timeout)
+
+    def stand_up(self) -> Outcome:
+        return self._r.stand_up()
+
+    def localised(self) -> bool:
+        return self._r.localised()
+
+    def forget_objects(self) -> None:
+        self._r.forget_objects()
+
+    # guarded requests
+    def navigate_to(self, place: str = "", pose: Pose2 | None = None) -> Outcome:
+        self._before()
+        return self._after(self._r.navigate_to(place, pose))
+
+    def approach(
+        self, target: tuple[float, float], standoff: float, heading: float | None = None
+    ) -> Outcome:
+        self._before()
+        return self._after(self._r.approach(target, standoff, heading))
+
+    def move_to_posture(self, posture: str) -> Outcome:
+        self._before()
+        return self._after(self._r.move_to_posture(posture))
+
+    def estimate_grasp(
+        self, label: str, camera: str, track_id: int = -1
+    ) -> tuple[Outcome, GraspPlan | None]:
+        self._before()
+        out, plan = self._r.estimate_grasp(label, camera, track_id)
+        return self._after(out), plan
+
+    def grasp(self, plan: GraspPlan) -> Outcome:
+        self._before()
+        return self._after(self._r.grasp(plan))
+
+    def place(self, position: Point3, yaw: float | None = None) -> Outcome:
+        self._before()
+        return self._after(self._r.place(position, yaw))
+
+    def locate_handle(self, hint: Point3, distance: float) -> tuple[Outcome, HandlePlan | None]:
+        self._before()
+        out, plan = self._r.locate_handle(hint, distance)
+        return self._after(out), plan
+
+    def open_drawer(self, handle: HandlePlan) -> Outcome:
+        self._before()
+        return self._after(self._r.open_drawer(handle))
 
 
 def knowledge_problems(
@@ -269,7 +423,9 @@ class TidyTask:
         on_step: Callable[[Progress], None] | None = None,
         cancelled: Callable[[], bool] | None = None,
     ) -> None:
-        self.robot = robot
+        # the steps speak to the guarded robot; the recovery from a restart to the robot
+        self.raw = robot
+        self.robot: RobotApi = _GuardedRobot(robot, self._pending)
         self.classes = dict(classes)
         self.places = dict(places)
         self.cfg = cfg
@@ -306,6 +462,9 @@ class TidyTask:
         # until perception sees it somewhere else
         self.stale: dict[int, Point3] = {}
         self.picked_from: Point3 | None = None  # where the held object was grasped
+        # restarts: the outages already dealt with; the life of perception's track ids
+        self._handled: dict[str, int] = {}
+        self.track_epoch = 0
         self.tidy_points = [
             p.target for p in self.places.values() if p.kind in ("deposit", "drawer", "cabinet")
         ]
@@ -329,12 +488,18 @@ class TidyTask:
         rep.t_start = self.robot.now()
         step = Step.OPEN_DRAWERS
         try:
+            self._handled = dict(self.raw.outages())
             self._wait_localised()
             while step is not Step.DONE:
                 self._enter(step)
                 t0, before = self.robot.now(), self.target
                 try:
+                    pending = self._pending()  # a restart noticed between steps
+                    if pending:
+                        raise _Interrupted(pending)
                     step = self._handlers[step]()
+                except _Interrupted as why:
+                    step = self._after_restart(step, why.services)
                 finally:  # the step's time goes to the object it was for
                     rec = before or self.target
                     if rec is not None:
@@ -476,6 +641,9 @@ class TidyTask:
     def _pose(self) -> Pose2:
         pose = self.robot.pose()
         if pose is None:
+            pending = self._pending()
+            if pending:  # navigation (or locomotion) is being restarted: wait for it
+                raise _Interrupted(pending)
             raise _Stop("failed", "navigation lost the robot's pose")
         return pose
 
@@ -486,7 +654,11 @@ class TidyTask:
     def _record_for(self, obj: SeenObject) -> ObjectRecord | None:
         """The record of this object: same track, or same class near where it was."""
         for rec in self.report.objects:
-            if rec.track_id == obj.track_id and rec.label == obj.label:
+            if (
+                rec.track_id == obj.track_id
+                and rec.label == obj.label
+                and rec.track_epoch == self.track_epoch
+            ):
                 return rec
         for rec in self.report.objects:
             if (
@@ -522,14 +694,263 @@ class TidyTask:
         """The target's newest position from the memory (it may have been nudged)."""
         rec = self.target
         assert rec is not None
+        if rec.track_epoch != self.track_epoch:  # its track id is from a memory now gone
+            return
         for obj in self.robot.objects():
             if obj.track_id == rec.track_id and obj.label == rec.label:
                 rec.position = obj.position
                 return
 
+    # ------------------------------------------------------------------ restarts
+    def _pending(self) -> set[str]:
+        """Services that went away since the last recovery dealt with them."""
+        return {s for s, n in self.raw.outages().items() if n != self._handled.get(s, 0)}
+
+    def _after_restart(self, step: Step, services: Collection[str]) -> Step:
+        """Recover from ``services`` going away during ``step``; the step that goes on.
+        A restart during the recovery is recovered from too (a few rounds)."""
+        for _ in range(RECOVERY_ROUNDS):
+            try:
+                return self._resume(step, services)
+            except _Interrupted as again:
+                services = again.services
+        raise _Stop("failed", f"services keep going away: {', '.join(sorted(services))}")
+
+    def _resume(self, step: Step, services: Collection[str]) -> Step:
+        """Put the robot back in order, record the restart against the current object,
+        and choose where the object is taken up again (module docstring)."""
+        rec = self.target
+        held_step = step in (Step.CARRY, Step.PLACE, Step.VERIFY)
+        restarted = self._recover(services, step)
+        memory_lost = bool(restarted & MEMORY_LOST_BY)
+        if step is Step.OPEN_DRAWERS:
+            return Step.OPEN_DRAWERS  # the drawers not tried yet (each is tried once)
+        if rec is None or rec.finished:  # (given up while being put down)
+            self.target = None
+            if memory_lost:
+                self._look_again(None)
+            return Step.GO_TO_VIEWPOINT if memory_lost or rec is not None else step
+        why = f"{' and '.join(sorted(restarted))} restarted"
+        given_up = self._restart_failure(step, why)
+        held = held_step
+        if step is Step.GRASP and self._holding_now():
+            # the fingers closed on it before the grasp was cut short: carry it
+            with self._lock:
+                rec.grasped = True
+            self.done_tracks.add(rec.track_id)
+            self.picked_from = rec.position
+            held = True
+        if memory_lost:
+            self._look_again(rec if held else None)
+        if not held:
+            if given_up or memory_lost:  # look for it (and the rest) again
+                self.target = None
+                return Step.GO_TO_VIEWPOINT
+            return Step.APPROACH  # navigation or manipulation: approach and probe again
+        if step is Step.VERIFY:  # the place had ended: check it from the gripper again
+            return Step.VERIFY
+        if self._holding_now() is False:
+            if step is Step.PLACE and self._release_seen():
+                return Step.VERIFY  # it had let go where it should
+            # the gripper lost it (e.g. while the robot lay down): look for it
+            self._dropped(f"{why}: the gripper lost it", step, record=False)
+            return Step.GO_TO_VIEWPOINT
+        if given_up:
+            self._put_down()
+            self.target = None
+            return Step.GO_TO_VIEWPOINT
+        # held (or not known, manipulation restarted: the place will tell): carry it on
+        return Step.CARRY
+
+    def _recover(self, services: Collection[str], step: Step) -> set[str]:
+        """Wait until ``services`` (and any that go away meanwhile) run again, and put
+        the robot back in order: standing, the memory's track ids forgotten, localised,
+        the arm in a known posture. Returns every service that restarted."""
+        r = self.raw
+        before = r.pose()  # where the robot was: the pose after must agree
+        todo = set(services)
+        restarted: set[str] = set()
+        for _ in range(RECOVERY_ROUNDS):
+            todo |= self._pending()
+            if not todo:
+                return restarted
+            self._handled = dict(r.outages())
+            restarted |= todo
+            names = " and ".join(sorted(todo))
+            self._say(f"{names} went away: waiting for it to run again")
+            if not r.wait_for_services(sorted(todo), self.cfg.restart_timeout):
+                self._check_stop()
+                raise _Stop(
+                    "failed",
+                    f"{names} did not run again within {self.cfg.restart_timeout:.0f} s",
+                )
+            if "locomotion" in todo:
+                # the actuators damped the legs when its commands stopped: it lies down
+                self._say("locomotion restarted: standing up")
+                out = r.stand_up()
+                if not out.ok:
+                    if self._pending():  # gone again: the next round waits for it all
+                        continue
+                    raise _Stop("failed", f"not standing after locomotion restarted: {out.reason}")
+            if todo & MEMORY_LOST_BY:
+                r.forget_objects()
+                self._forget_tracks()
+            if todo & POSE_LOST_BY and not self._relocalise(before):
+                continue  # gone again meanwhile: the next round, with the new one
+            todo = set()
+            # the arm: where a cut motion left it, or unknown to a new manipulation
+            self.posture = ""
+            if step is not Step.OPEN_DRAWERS:  # (the fingers may be on a handle there)
+                self._posture_raw(self._safe_posture(step))
+        if self._pending():
+            raise _Stop("failed", f"services keep going away: {', '.join(sorted(restarted))}")
+        return restarted
+
+    def _posture_raw(self, name: str) -> None:
+        """A posture move during a recovery (a failure is not a step's: the next move
+        tries again)."""
+        out = self.raw.move_to_posture(name)
+        self.posture = name if out.ok else ""
+
+    def _safe_posture(self, step: Step) -> str:
+        """The known posture to move the arm to after a restart: the carry posture while
+        an object may be in the gripper, else the walking one."""
+        if self.target is not None and (
+            step in (Step.CARRY, Step.PLACE) or (step is Step.GRASP and self.raw.holding())
+        ):
+            return self._deposit()[0].carry_posture
+        return self.cfg.walk_posture
+
+    def _relocalise(self, before: Pose2 | None) -> bool:
+        """Wait for a settled map pose from navigation's current run, near ``before``
+        (the robot did not walk), at most ``relocalise_timeout``; farther than
+        ``relocalise_tolerance`` after that, navigation is trusted (it owns the pose).
+        False when another service went away meanwhile."""
+        r, c = self.raw, self.cfg
+        self._say("waiting for a settled pose")
+        t_end = r.now() + c.relocalise_timeout
+        while True:
+            self._check_stop()
+            if self._pending():  # another restart: the recovery goes round again
+                return False
+            here = r.pose() if r.localised() else None
+            if here is not None and (
+                before is None or _dist(here, before) <= c.relocalise_tolerance
+            ):
+                return True
+            if r.now() >= t_end:
+                if here is None:
+                    raise _Stop(
+                        "failed", f"not localised {c.relocalise_timeout:.0f} s after a restart"
+                    )
+                assert before is not None
+                self._say(f"localised {_dist(here, before):.1f} m from where it was: going on")
+                return True
+            r.wait(0.5)
+
+    def _forget_tracks(self) -> None:
+        """Perception numbers its tracks afresh (or they were kept in a frame that is
+        gone): the ids the task holds name nothing now. Records are matched again by
+        class and position."""
+        self.track_epoch += 1
+        self.done_tracks.clear()
+        self.stale.clear()
+
+    def _restart_failure(self, step: Step, why: str) -> bool:
+        """Record a restart against the target; it counts as a failure only after
+        ``restart_free`` of them. True when the object is given up by it."""
+        rec = self.target
+        assert rec is not None
+        with self._lock:
+            rec.failures.append(Failure(step.value, why, self.robot.now()))
+            rec.restarts += 1
+            if rec.restarts > self.cfg.restart_free:
+                rec.attempts += 1
+                if rec.attempts >= self.cfg.max_attempts:
+                    rec.given_up = True
+                    self.done_tracks.add(rec.track_id)
+        return rec.given_up
+
+    def _holding_now(self) -> bool | None:
+        """Whether the gripper holds something, waiting up to ``holding_wait`` while it is
+        not known (a restarted manipulation has not said yet)."""
+        r = self.raw
+        t_end = r.now() + self.cfg.holding_wait
+        held = r.holding()
+        while held is None and r.now() < t_end:
+            self._check_stop()
+            r.wait(0.1)
+            held = r.holding()
+        return held
+
+    def _release_seen(self) -> bool:
+        """A track of the target's class lies at the release point."""
+        rec = self.target
+        assert rec is not None
+        point, _, _ = self._release_point()
+        return any(
+            o.label == rec.label and _dist(o.position, point) < self.cfg.verify_radius
+            for o in self.raw.objects()
+        )
+
+    def _look_again(self, held: ObjectRecord | None) -> None:
+        """Perception's memory is gone: look again for every object found and not
+        finished (``held`` goes on in the gripper). The zone in progress goes back to its
+        first viewpoint that sees one; searched zones that hold one are queued again; a
+        floor object outside every zone gets a look of its own."""
+        todo = [r for r in self.report.objects if not r.finished and r is not held]
+        zones = [p for p in self.places.values() if p.kind in ("search_floor", "search_table")]
+        margin = self.cfg.same_object_radius
+
+        def inside(z: Place, p: Point3) -> bool:
+            return (
+                abs(p[0] - z.target[0]) <= z.size[0] / 2 + margin
+                and abs(p[1] - z.target[1]) <= z.size[1] / 2 + margin
+            )
+
+        spots = []
+        for rec in todo:
+            p = rec.position
+            if self.zone is not None and inside(self.zone, p):
+                continue  # the zone in progress: below
+            around = [z for z in zones if inside(z, p)]
+            for z in around:
+                if z.name in self.report.zones_searched:
+                    with self._lock:
+                        self.report.zones_searched.remove(z.name)
+                    self.zones_todo.append(z.name)
+            if not around and p[2] <= self.cfg.table_min_z:
+                spots.append(rec)
+        if self.zone is not None and self.viewpoints:
+            sc = self._zone_search()
+            first = [
+                i
+                for i, vp in enumerate(self.viewpoints)
+                if any(sees(vp, (r.position[0], r.position[1]), sc) for r in todo)
+            ]
+            if first:
+                self.view_index = min(self.view_index, first[0])
+        here = self.raw.pose()
+        for rec in spots:
+            name = f"{RELOOK_ZONE}{rec.name}"
+            if name in self.zones_todo:
+                continue
+            x, y, _ = rec.position
+            # look at it from drop_look_back away, coming from where the robot is
+            heading = math.atan2(y - here[1], x - here[0]) if here is not None else 0.0
+            back = self.cfg.drop_look_back
+            stand = (x - back * math.cos(heading), y - back * math.sin(heading), heading)
+            size = (self.cfg.drop_look_size, self.cfg.drop_look_size)
+            self.places[name] = Place(name, "search_floor", stand, (x, y, 0.0), size)
+            self.zones_todo.insert(0, name)
+        self._say(f"looking again for {len(todo)} object(s) perception forgot")
+
     # ------------------------------------------------------------------ drawers
     def _open_drawers(self) -> Step:
+        tried = {d.place for d in self.report.drawers}
         for name in self.drawer_cfg.places:
+            if name in tried:  # (this step again after a restart)
+                continue
             rec = DrawerRecord(name)
             with self._lock:
                 self.report.drawers.append(rec)
@@ -557,7 +978,14 @@ class TidyTask:
                 handle[2],
             )
             pull_m = min(want - rec.opened, dc.max_pull)
-            why = self._pull(rec.place, now_at, place.stand[2], pull_m)
+            try:
+                why = self._pull(rec.place, now_at, place.stand[2], pull_m)
+            except _Interrupted as stop:
+                # a restart is not the drawer's fault: recover, then this pull again
+                restarted = self._recover(stop.services, Step.OPEN_DRAWERS)
+                reason = f"{' and '.join(sorted(restarted))} restarted"
+                rec.failures.append(Failure(Step.OPEN_DRAWERS.value, reason, self.robot.now()))
+                continue
             if why:
                 failures += 1
                 rec.failures.append(Failure(Step.OPEN_DRAWERS.value, why, self.robot.now()))
@@ -611,7 +1039,7 @@ class TidyTask:
 
     def _go_to_viewpoint(self) -> Step:
         if self.zone is None or self.view_index >= len(self.viewpoints):
-            if self.zone is not None and not self.zone.name.startswith(DROP_ZONE):
+            if self.zone is not None and not _synthetic(self.zone.name):
                 with self._lock:
                     self.report.zones_searched.append(self.zone.name)
             self.zone = self._next_zone()
@@ -653,10 +1081,12 @@ class TidyTask:
                         place=self.classes[obj.label].place,
                         position=obj.position,
                         t_found=now,
+                        track_epoch=self.track_epoch,
                     )
                     self.report.objects.append(rec)
                 else:
                     rec.position, rec.track_id = obj.position, obj.track_id
+                    rec.track_epoch = self.track_epoch
         if not found:
             if self.zone is None:
                 return Step.DONE
@@ -846,23 +1276,27 @@ class TidyTask:
             step = -self.cfg.place_step if reach[0] == TOO_FAR else self.cfg.place_step
             self.robot.approach((point[0], point[1]), max(now_dist + step, 0.1), heading)
         self.posture = ""
-        if self.robot.holding() is False:  # it let go somewhere other than asked
+        # it let go somewhere other than asked (or manipulation, restarted, lost the grip)
+        if self.robot.holding() is False or (out.rejected and NOT_HOLDING in out.reason):
             self._dropped(f"place: {out.reason}; let go elsewhere", Step.PLACE)
             return Step.GO_TO_VIEWPOINT
         return self._give_up_or(Step.PLACE, f"place: {out.reason}", Step.PLACE)
 
-    def _dropped(self, why: str, step: Step) -> None:
-        """The held object fell: record it, and search again where it may lie (the zones
-        near the way from where it was picked up to here)."""
+    def _dropped(self, why: str, step: Step, record: bool = True) -> None:
+        """The held object fell: record it (unless ``record`` is False: the caller did),
+        and search again where it may lie (the zones near the way from where it was
+        picked up to here)."""
         rec = self.target
         assert rec is not None
         with self._lock:
             rec.dropped = True
-        for obj in self.robot.objects():
-            if obj.track_id == rec.track_id:
-                self.stale[rec.track_id] = obj.position
+        if rec.track_epoch == self.track_epoch:
+            for obj in self.robot.objects():
+                if obj.track_id == rec.track_id:
+                    self.stale[rec.track_id] = obj.position
         self.done_tracks.discard(rec.track_id)
-        self._fail(step, why)
+        if record:
+            self._fail(step, why)
         here = self._pose()
         self._search_again_near(self.picked_from or here, here)
         self.target = None
@@ -872,7 +1306,7 @@ class TidyTask:
         """Search the floor around where the grip was lost before any zone: the object
         lies at the robot's feet (it fell from the gripper there), often outside every
         search zone (by a deposit place). The zone in progress is searched again later."""
-        if self.zone is not None and not self.zone.name.startswith(DROP_ZONE):
+        if self.zone is not None and not _synthetic(self.zone.name):
             self.zones_todo.insert(0, self.zone.name)
         back = self.cfg.drop_look_back
         stand = (here[0] - back * math.cos(here[2]), here[1] - back * math.sin(here[2]), here[2])
@@ -922,4 +1356,3 @@ class TidyTask:
             rec.position = point
         self._posture(self.cfg.walk_posture)
         self.target = None
-        return Step.GO_TO_VIEWPOINT

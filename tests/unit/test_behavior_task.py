@@ -6,12 +6,21 @@ way (floor postures see the floor, table postures the tables), it grasps what is
 and puts an object down where it is asked. Failures are injected per object. Time is the
 fake robot's own clock (seconds per request), so nothing here depends on the machine.
 
+Restarts: an :class:`Outage` kills one of the robot's services in the middle of a request
+and has it run again some seconds later, as the launcher does after a SIGKILL. While it is
+away its requests (and every request, for locomotion) fail as the node ends them:
+``interrupted``. What it loses is lost: perception its memory; locomotion the standing
+robot (the legs damped: no walking until it stands up) and the odom frame of the memory
+(the remembered positions are off until forgotten); manipulation what it knew of the grip
+(until it commands the arm again); navigation its pose (until it runs again).
+
 The task runs on the real places file, object catalogue and ``configs/behavior.toml``.
 """
 
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -33,6 +42,7 @@ from quadmanip.services.behavior.frames import (
 from quadmanip.services.behavior.node import progress_message
 from quadmanip.services.behavior.report import Progress, TaskReport
 from quadmanip.services.behavior.robot_api import GraspPlan, HandlePlan, Outcome, SeenObject
+from quadmanip.services.behavior.service_watch import ServiceWatch, stand_command
 from quadmanip.services.behavior.tidy_task import (
     TidyTask,
     classes_from_catalogue,
@@ -48,6 +58,34 @@ CLASSES = classes_from_catalogue(CATALOGUE)
 FLOOR_LOOKS = ("floor_search", "probe_floor")
 TABLE_LOOKS = ("table_search", "probe_table", "probe_horizontal")
 START = (0.8, 1.2, 0.0)
+
+
+#: which service serves each request (the node's CLIENTS)
+SERVES = {
+    "navigate_to": "navigation",
+    "approach": "navigation",
+    "move_to_posture": "manipulation",
+    "grasp": "manipulation",
+    "place": "manipulation",
+    "open_drawer": "manipulation",
+    "estimate_grasp": "perception",
+    "locate_handle": "perception",
+}
+WATCHED = ("locomotion", "manipulation", "navigation", "perception")
+
+
+@dataclass
+class Outage:
+    """``service`` dies in the middle of the ``nth`` request ``at`` (counting only those
+    sent while an object is held, when ``holding`` says so) and runs again ``down_s``
+    later (inf: never). ``drops``: the held object falls as the robot lies down."""
+
+    service: str
+    at: str
+    nth: int = 1
+    down_s: float = 6.0
+    holding: bool | None = None
+    drops: bool = False
 
 
 @dataclass
@@ -80,6 +118,7 @@ class FakeHouse:
         sticky: dict[str, int] | None = None,
         seconds_per_walk: float = 8.0,
         localised: bool = True,
+        outages: list[Outage] | None = None,
     ) -> None:
         self.things = {t.track_id: t for t in things}
         self.grasp_failures = {k: list(v) for k, v in (grasp_failures or {}).items()}
@@ -87,7 +126,7 @@ class FakeHouse:
         self.drop_at_the_end = drop_at_the_end  # at the walk's goal, not half way
         self.sticky = dict(sticky or {})  # places that "succeed" but keep the object
         self.walk_s = seconds_per_walk
-        self.localised = localised
+        self.localised_ok = localised
         self.t = 0.0
         self.at = START
         self.posture = "stow"
@@ -96,15 +135,119 @@ class FakeHouse:
         self.drawers: dict[str, float] = {}
         self.calls: list[tuple[str, object]] = []
         self.cancel_after: float | None = None
+        # restarts
+        self.outage_plan = list(outages or [])
+        self.counts: dict[str, int] = {}
+        self.dead: dict[str, float] = {}  # service -> fake time it runs again
+        self.outage_counts = dict.fromkeys(WATCHED, 0)
+        self.killed_at: list[int] = []  # index in calls of each killing request
+        self.sent_while_down: list[tuple[str, str]] = []
+        self.standing = True
+        self.grip_known = True
+        self.settle_s = 3.0  # s a restarted navigation takes to localise again
+        self.waits: list[tuple[tuple[float, float, float], str, bool]] = []  # where, how, seeing
+        self.settled_at = 0.0
+
+    # -------------------------------------------------------------- restarts
+    def _strike(self, name: str) -> Outage | None:
+        """Count a request (or a wait); the outage planned for it, if any, strikes."""
+        holding = self.held is not None
+        self.counts[name] = self.counts.get(name, 0) + 1
+        key = f"{name}/{holding}"
+        self.counts[key] = self.counts.get(key, 0) + 1
+        for o in self.outage_plan:
+            n = self.counts[name] if o.holding is None else self.counts[key]
+            if o.at == name and n == o.nth and o.holding in (None, holding):
+                self.outage_plan.remove(o)
+                self._kill(o)
+                self.killed_at.append(len(self.calls) - 1)
+                return o
+        return None
+
+    def _request(self, name: str) -> Outcome | None:
+        """Every request starts here: a planned outage may strike; a request that needs a
+        service that is away fails as the node ends it (None: it goes on)."""
+        o = self._strike(name)
+        if o is not None:
+            return Outcome(False, f"{name}: {o.service} went away", interrupted=o.service)
+        self._revive()
+        for svc in (SERVES[name], "locomotion"):
+            if svc in self.dead:
+                self.sent_while_down.append((name, svc))
+                return Outcome(False, f"{svc} is not running", interrupted=svc)
+        if name in ("navigate_to", "approach") and not self.standing:
+            return Outcome(False, "velocity commands need mode stand or walk (now damp)")
+        if name == "navigate_to" and not self.localised():
+            return Outcome(False, "not localised: the filter is converging")
+        if SERVES[name] == "manipulation":
+            self.grip_known = True  # a new manipulation feels the fingers once it works
+        return None
+
+    def _kill(self, o: Outage) -> None:
+        self.dead[o.service] = self.t + o.down_s
+        self.outage_counts[o.service] += 1
+        if o.service == "navigation":  # a new filter takes a while to settle
+            self.settled_at = self.t + o.down_s + self.settle_s
+        if o.service == "perception":
+            self.memory.clear()
+        elif o.service == "manipulation":
+            self.grip_known = False
+            self.posture = ""
+        elif o.service == "locomotion":
+            self.standing = False
+            # the odom frame the memory was kept in starts again elsewhere
+            self.memory = {
+                k: replace(v, position=(v.position[0] + 0.7, v.position[1] - 0.5, v.position[2]))
+                for k, v in self.memory.items()
+            }
+            if o.drops and self.held is not None:
+                x, y, yaw = self.at
+                self.held.position = (x + 0.3 * math.cos(yaw), y + 0.3 * math.sin(yaw), 0.05)
+                self.held = None
+
+    def _revive(self) -> None:
+        for svc, t_back in list(self.dead.items()):
+            if self.t >= t_back:
+                del self.dead[svc]
+
+    def outages(self) -> dict[str, int]:
+        return dict(self.outage_counts)
+
+    def wait_for_services(self, services, timeout: float) -> bool:
+        self.calls.append(("wait_for_services", tuple(sorted(services))))
+        back = max((self.dead.get(s, self.t) for s in services), default=self.t)
+        if math.isinf(back):
+            return False
+        self.t = max(self.t, back)
+        self._revive()
+        return True
+
+    def stand_up(self) -> Outcome:
+        self.calls.append(("stand_up", None))
+        if "locomotion" in self.dead:
+            return Outcome(False, "locomotion is not running", interrupted="locomotion")
+        self.t += 2.0
+        self.standing = True
+        return Outcome(True)
+
+    def localised(self) -> bool:
+        self._revive()
+        return self.localised_ok and "navigation" not in self.dead and self.t >= self.settled_at
+
+    def forget_objects(self) -> None:
+        self.calls.append(("forget_objects", None))
+        self.memory.clear()
 
     # -------------------------------------------------------------- senses
     def _look(self) -> None:
+        self._revive()
         for t in self.things.values():
             if t is self.held:
                 continue
             dist, bearing = _bearing(self.at, t.position)
             looks = TABLE_LOOKS if t.on_table else FLOOR_LOOKS
-            if self.posture in looks and 0.25 <= dist <= 1.6 and abs(bearing) <= 0.7:
+            seeing = "perception" not in self.dead
+            if seeing and self.posture in looks and 0.25 <= dist <= 1.6 and abs(bearing) <= 0.7:
                 self.memory[t.track_id] = SeenObject(t.track_id, t.label, t.position)
         if self.held is not None:  # the held object's track follows the gripper
             x, y, yaw = self.at
@@ -115,21 +258,27 @@ class FakeHouse:
         return self.t
 
     def wait(self, seconds: float) -> None:
+        self._strike("wait")
         self.t += seconds
         self._look()
+        self.waits.append((self.at, self.posture, "perception" not in self.dead))
 
     def pose(self) -> tuple[float, float, float] | None:
-        return self.at if self.localised else None
+        return self.at if self.localised_ok else None
 
     def objects(self) -> list[SeenObject]:
         return list(self.memory.values())
 
     def holding(self) -> bool | None:
+        if not self.grip_known:
+            return None
         return self.held is not None
 
     # -------------------------------------------------------------- walking
     def navigate_to(self, place: str = "", pose: tuple[float, float, float] | None = None):
         self.calls.append(("navigate_to", place or pose))
+        if (refused := self._request("navigate_to")) is not None:
+            return refused
         self.t += self.walk_s
         goal = PLACES[place].stand if place else pose
         assert goal is not None
@@ -148,6 +297,8 @@ class FakeHouse:
 
     def approach(self, target, standoff, heading=None):
         self.calls.append(("approach", (tuple(target), standoff, heading)))
+        if (refused := self._request("approach")) is not None:
+            return refused
         self.t += self.walk_s / 2
         h = (
             heading
@@ -160,6 +311,8 @@ class FakeHouse:
 
     def move_to_posture(self, posture: str) -> Outcome:
         self.calls.append(("move_to_posture", posture))
+        if (refused := self._request("move_to_posture")) is not None:
+            return refused
         self.t += 1.0
         self.posture = posture
         self._look()
@@ -168,6 +321,8 @@ class FakeHouse:
     # -------------------------------------------------------------- hands
     def estimate_grasp(self, label, camera, track_id=-1):
         self.calls.append(("estimate_grasp", (label, track_id)))
+        if (refused := self._request("estimate_grasp")) is not None:
+            return refused, None
         self.t += 1.0
         t = self.things.get(track_id)
         if t is None or t is self.held:
@@ -195,6 +350,8 @@ class FakeHouse:
             if x.label == plan.object_name and x.position == plan.position_map
         )
         self.calls.append(("grasp", t.label))
+        if (refused := self._request("grasp")) is not None:
+            return refused
         self.t += 5.0
         failures = self.grasp_failures.get(t.label)
         if failures:
@@ -210,6 +367,8 @@ class FakeHouse:
 
     def place(self, position, yaw=None) -> Outcome:
         self.calls.append(("place", (tuple(position), yaw)))
+        if (refused := self._request("place")) is not None:
+            return refused
         self.t += 4.0
         if self.held is None:
             return Outcome(False, "invalid_goal: nothing held", rejected=True)
@@ -231,6 +390,8 @@ class FakeHouse:
 
     def locate_handle(self, hint, distance):
         self.calls.append(("locate_handle", tuple(hint)))
+        if (refused := self._request("locate_handle")) is not None:
+            return refused, None
         self.t += 1.0
         return Outcome(True), HandlePlan((0.5, 0.0, 0.1), (-1.0, 0.0, 0.0), distance)
 
@@ -240,6 +401,8 @@ class FakeHouse:
             key=lambda p: math.dist(p.stand[:2], self.at[:2]),
         )
         self.calls.append(("open_drawer", (drawer.name, handle.distance)))
+        if (refused := self._request("open_drawer")) is not None:
+            return refused
         self.t += 6.0
         self.drawers[drawer.name] = self.drawers.get(drawer.name, 0.0) + handle.distance
         return Outcome(True)
@@ -505,6 +668,200 @@ def test_only_the_wanted_classes_and_nothing_already_in_place() -> None:
     assert house.things[4].released_in == "green_box"
 
 
+# ------------------------------------------------------------------ restarts
+
+
+def _after_kill(house: FakeHouse, i: int = 0) -> list[tuple[str, object]]:
+    """The calls after the ``i``-th killing request."""
+    return house.calls[house.killed_at[i] + 1 :]
+
+
+def _all_home(house: FakeHouse, report: TaskReport) -> None:
+    """The trial ended, every object in its place, none given up."""
+    assert report.outcome == "done", report.reason
+    for t in house.things.values():
+        assert t.released_in == _home(t.label), (t.label, t.released_in)
+    assert not any(r.given_up for r in report.objects)
+    assert house.sent_while_down == []  # nothing was asked of a service that was away
+
+
+def test_locomotion_restart_while_carrying_stands_up_and_carries_on() -> None:
+    house = FakeHouse(_things(), outages=[Outage("locomotion", "navigate_to", holding=True)])
+    report = _task(house).run()
+    _all_home(house, report)
+    after = [w for w, _ in _after_kill(house)]
+    # wait for it, stand up, forget the memory (its frame restarted), then carry on
+    assert after[:3] == ["wait_for_services", "stand_up", "forget_objects"]
+    assert after.index("stand_up") < after.index("navigate_to")
+    carried = [r for r in report.objects if "locomotion restarted" in str(r.failures)]
+    assert len(carried) == 1
+    rec = carried[0]
+    assert rec.placed and not rec.dropped and rec.restarts == 1 and rec.attempts == 0
+    assert [f.reason for f in rec.failures] == ["locomotion restarted"]
+    # the arm is moved to the carry posture first, and the carry goes on to its place
+    assert after[3] == "move_to_posture"
+    assert _calls(house, "grasp").count(rec.label) == 1
+
+
+def test_locomotion_restart_that_drops_the_object_finds_it_again() -> None:
+    house = FakeHouse(
+        _things()[:1], outages=[Outage("locomotion", "navigate_to", holding=True, drops=True)]
+    )
+    report = _task(house).run()
+    _all_home(house, report)
+    rec = _record(report, "tomato_soup_can")
+    assert rec.dropped and rec.placed and rec.attempts == 0
+    assert [f.reason for f in rec.failures] == ["locomotion restarted"]
+    assert _calls(house, "grasp") == ["tomato_soup_can"] * 2
+    assert "stand_up" in [w for w, _ in _after_kill(house)]
+
+
+def test_locomotion_restart_during_an_approach_looks_again_from_standing() -> None:
+    house = FakeHouse(_things(), outages=[Outage("locomotion", "approach", nth=2)])
+    report = _task(house).run()
+    _all_home(house, report)
+    after = [w for w, _ in _after_kill(house)]
+    assert after[:3] == ["wait_for_services", "stand_up", "forget_objects"]
+    # the remembered positions were in the old odom frame: it looked again before
+    # approaching anything (a search posture, then an estimate from a fresh memory)
+    first_probe = after.index("estimate_grasp")
+    looks = [a for w, a in _after_kill(house)[:first_probe] if w == "move_to_posture"]
+    assert set(looks) & {"floor_search", "table_search"}
+    assert all(r.attempts == 0 for r in report.objects)
+    assert len(report.objects) == len(house.things)  # one record per object, the same
+
+
+def test_navigation_restart_waits_for_a_pose_and_walks_on() -> None:
+    # killed while carrying an object; and while walking to a viewpoint
+    for outage in (
+        Outage("navigation", "navigate_to", holding=True),
+        Outage("navigation", "navigate_to", nth=6, holding=False),
+    ):
+        house = FakeHouse(_things(), outages=[outage])
+        report = _task(house).run()
+        _all_home(house, report)
+        killed = house.calls[house.killed_at[0]]
+        after = _after_kill(house)
+        assert after[0] == ("wait_for_services", ("navigation",))
+        assert "stand_up" not in [w for w, _ in after]  # the robot stood all along
+        assert "forget_objects" not in [w for w, _ in after]  # perception's memory is intact
+        # the walk that was cut short is walked again, once localised (a viewpoint is not
+        # skipped; a carry is not counted as a failure)
+        assert next(a for w, a in after if w == "navigate_to") == killed[1]
+        assert all(r.attempts == 0 for r in report.objects)
+        assert all(not d.failures for d in report.drawers)
+
+
+def test_perception_restart_looks_again_before_choosing_a_target() -> None:
+    house = FakeHouse(_things(), outages=[Outage("perception", "estimate_grasp", nth=2)])
+    report = _task(house).run()
+    _all_home(house, report)
+    killed = house.calls[house.killed_at[0]]
+    after = _after_kill(house)
+    assert after[0] == ("wait_for_services", ("perception",))
+    assert ("forget_objects", None) in after
+    # a look in a search posture comes before the next estimate
+    first_probe = [w for w, _ in after].index("estimate_grasp")
+    assert {a for w, a in after[:first_probe] if w == "move_to_posture"} & {
+        "floor_search",
+        "table_search",
+    }
+    label = killed[1][0]  # type: ignore[index]
+    rec = _record(report, label)  # the target keeps its one record
+    assert rec.placed and rec.attempts == 0 and rec.restarts == 1
+    assert [f.reason for f in rec.failures] == ["perception restarted"]
+
+
+def test_perception_restart_after_every_zone_was_searched_searches_again() -> None:
+    # the last estimate of the trial: every zone is searched by then, the objects left
+    # are only in the memory that the restart wipes
+    house = FakeHouse(_things())
+    _task(house).run()
+    n = len(_calls(house, "estimate_grasp"))
+    house = FakeHouse(_things(), outages=[Outage("perception", "estimate_grasp", nth=n)])
+    report = _task(house).run()
+    _all_home(house, report)
+
+
+def test_perception_restart_during_a_look_looks_again_from_the_same_viewpoint() -> None:
+    house = FakeHouse(_things(), outages=[Outage("perception", "wait", nth=1)])
+    report = _task(house).run()
+    _all_home(house, report)
+    viewpoint, posture, seeing = house.waits[0]
+    assert not seeing  # it saw nothing during that look
+    assert _after_kill(house)[0] == ("wait_for_services", ("perception",))
+    # the next look is from the same viewpoint (not the next one), seeing
+    assert house.waits[1] == (viewpoint, posture, True)
+
+
+def test_manipulation_restart_moves_the_arm_to_a_known_posture_first() -> None:
+    house = FakeHouse(_things(), outages=[Outage("manipulation", "grasp")])
+    report = _task(house).run()
+    _all_home(house, report)
+    after = _after_kill(house)
+    assert after[0] == ("wait_for_services", ("manipulation",))
+    arm = [(w, a) for w, a in after if SERVES.get(w) == "manipulation"]
+    assert arm[0] == ("move_to_posture", CFG.task.walk_posture)
+    label = house.calls[house.killed_at[0]][1]
+    rec = _record(report, label)  # type: ignore[arg-type]
+    assert rec.placed and rec.attempts == 0
+    assert [f.reason for f in rec.failures] == ["manipulation restarted"]
+
+
+def test_manipulation_restart_while_holding_checks_the_grip_and_places_it() -> None:
+    house = FakeHouse(_things()[:1], outages=[Outage("manipulation", "place")])
+    report = _task(house).run()
+    _all_home(house, report)
+    rec = _record(report, "tomato_soup_can")
+    assert rec.placed and not rec.dropped and rec.attempts == 0
+    after = _after_kill(house)
+    carry = CFG.deposits[CATALOGUE.place_of("tomato_soup_can")].carry_posture
+    arm = [(w, a) for w, a in after if SERVES.get(w) == "manipulation"]
+    assert arm[0] == ("move_to_posture", carry) and arm[1][0] == "place"
+    assert _calls(house, "grasp") == ["tomato_soup_can"]
+
+
+def test_a_restart_does_not_give_up_an_object_on_its_last_attempt() -> None:
+    last = CFG.task.max_attempts  # the estimate of its last attempt
+    fails = {"baseball": ["grip_lost: slipped"] * (last - 1)}
+    house = FakeHouse(
+        _things()[3:4],
+        grasp_failures=fails,
+        outages=[Outage("perception", "estimate_grasp", nth=last)],
+    )
+    report = _task(house).run()
+    _all_home(house, report)
+    rec = _record(report, "baseball")
+    assert rec.attempts == last - 1 and rec.restarts == 1
+    assert [f.reason for f in rec.failures][-1] == "perception restarted"
+    # with no restart free, the same restart is its last failure
+    house = FakeHouse(
+        _things()[3:4],
+        grasp_failures={"baseball": ["grip_lost: slipped"] * (last - 1)},
+        outages=[Outage("perception", "estimate_grasp", nth=last)],
+    )
+    report = _task(house, cfg=replace(CFG.task, restart_free=0)).run()
+    assert _record(report, "baseball").given_up
+
+
+def test_a_drawer_pull_cut_by_a_restart_is_pulled_again() -> None:
+    house = FakeHouse([], outages=[Outage("manipulation", "open_drawer", nth=2)])
+    report = _task(house).run()
+    assert report.outcome == "done"
+    assert all(d.ok for d in report.drawers) and len(report.drawers) == 3
+    right = next(d for d in report.drawers if d.place == "drawer_right")
+    assert [f.reason for f in right.failures] == ["manipulation restarted"]
+    assert house.drawers["drawer_right"] == pytest.approx(CFG.drawers.open_distance)
+    assert house.sent_while_down == []
+
+
+def test_a_service_that_does_not_come_back_ends_the_trial() -> None:
+    house = FakeHouse(_things(), outages=[Outage("navigation", "navigate_to", down_s=math.inf)])
+    report = _task(house).run()
+    assert report.outcome == "failed"
+    assert "navigation did not run again" in report.reason
+
+
 # ------------------------------------------------------------------ knowledge, geometry
 
 
@@ -579,11 +936,31 @@ def test_frames_round_trip_and_a_grasp_is_carried_over_a_step() -> None:
 
 
 class _Cache:
+    """A latest-value cache: ``get`` answers the message; ``age`` is how long ago (wall s)
+    it arrived (just now unless the test says otherwise)."""
+
     def __init__(self, msg: object = None) -> None:
         self.msg = msg
+        self.arrived = time.monotonic()
 
     def get(self) -> object:
         return self.msg
+
+    def put(self, msg: object) -> None:
+        self.msg, self.arrived = msg, time.monotonic()
+
+    @property
+    def age(self) -> float | None:
+        return None if self.msg is None else time.monotonic() - self.arrived
+
+
+def _running_watch(t: float = 0.0) -> ServiceWatch:
+    """A watch that has seen the four services start and run (at wall time ``t``)."""
+    watch = ServiceWatch(WATCHED, heartbeat_timeout=15.0)
+    for s in WATCHED:
+        watch.liveliness(s, True, t)
+        watch.heartbeat(s, 0, "running", t)
+    return watch
 
 
 class _Handle:
@@ -647,8 +1024,12 @@ def _bus_robot(**clients: _Client):
         ),
         tracks=_Cache(),
         payload=_Cache(),
+        health=_Cache(),
         clients={name: clients.get(name, _Client()) for name in CLIENTS},
+        watch=_running_watch(time.monotonic() - 10.0),
+        pub_mode=SimpleNamespace(sent=[]),
     )
+    node.pub_mode.publish = node.pub_mode.sent.append
     return BusRobot(node, lambda: False), node  # type: ignore[arg-type]
 
 

@@ -144,3 +144,12 @@ def test_command_line_faults_and_overrides():
     }
     with pytest.raises(ValueError, match="SERVICE.KEY=VALUE"):
         service_overrides(["router.x=1"])
+
+
+def test_a_false_detection_of_the_class_elsewhere_is_not_the_object():
+    # a "bowl" seen in the kitchen (6.0, 3.4) is not short-0's bowl on the living table
+    p = _progress(
+        objects=["spoon", "bowl"], object_positions=np.array([[2.28, 0.78, 0.0], [6.0, 3.4, 0.4]])
+    )
+    rep = _scored(_judge(["spoon", "bowl"], ["spoon"]), p)
+    assert [o.found for o in rep.objects] == [True, False]
