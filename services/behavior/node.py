@@ -214,7 +214,9 @@ class BusRobot:
     def holding(self) -> bool | None:
         since = -math.inf
         if self.watch.outages().get("manipulation", 0) > 0:
-            # a restarted manipulation does not know the grip yet: only what it says now
+            # away, or restarted and not yet said what it holds: only what it says now
+            if not self.watch.running("manipulation"):
+                return None
             since = self.watch.running_since("manipulation")
         payload = fresh(self.node.payload, since)
         if payload is None:

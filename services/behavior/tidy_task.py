@@ -1,4 +1,3 @@
-
 """The tidy-up task (paper Sections 5 and 7.2) as an explicit state machine.
 
 The robot opens the left, right and top drawers (Section 7.2; the tools' drawer is pulled
@@ -1356,3 +1355,4 @@ class TidyTask:
             rec.position = point
         self._posture(self.cfg.walk_posture)
         self.target = None
+        return Step.GO_TO_VIEWPOINT

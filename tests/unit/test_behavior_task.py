@@ -42,7 +42,7 @@ from quadmanip.services.behavior.frames import (
 from quadmanip.services.behavior.node import progress_message
 from quadmanip.services.behavior.report import Progress, TaskReport
 from quadmanip.services.behavior.robot_api import GraspPlan, HandlePlan, Outcome, SeenObject
-from quadmanip.services.behavior.service_watch import ServiceWatch, stand_command
+from quadmanip.services.behavior.service_watch import ServiceWatch
 from quadmanip.services.behavior.tidy_task import (
     TidyTask,
     classes_from_catalogue,
@@ -992,16 +992,16 @@ class _Client:
         return _Handle(True, "", res)
 
 
-def _bus_robot(**clients: _Client):
+def _bus_robot(config: BehaviorConfig = CFG, **clients: _Client):
     """A BusRobot on a stub node: map->odom (1, 0, 90 deg), the base at odom (2, 1, 0.27)
-    heading 90 deg (so at map (0, 2) heading 180 deg)."""
+    heading 90 deg (so at map (0, 2) heading 180 deg); the four services run."""
     from types import SimpleNamespace
 
     from quadmanip.common.rotations import quat_from_yaw
     from quadmanip.services.behavior.node import CLIENTS, BusRobot
 
     node = SimpleNamespace(
-        config=CFG,
+        config=config,
         bus=SimpleNamespace(clock=lambda: 12.0),
         map_pose=_Cache(
             m.MapPose(
@@ -1087,3 +1087,168 @@ def test_the_adapter_reports_rejections_failures_and_what_it_holds() -> None:
     (seen,) = robot.objects()
     assert seen.track_id == 5 and seen.confirmed  # odom (2, 2) is map (-1, 2)
     assert seen.position == pytest.approx((-1.0, 2.0, 0.04))
+
+
+# ------------------------------------------------------------------ the adapter and restarts
+
+
+def _restart(watch: ServiceWatch, service: str) -> None:
+    """``service`` is killed and restarted (now, wall time)."""
+    now = time.monotonic()
+    watch.liveliness(service, False, now)
+    watch.liveliness(service, True, now)
+    watch.heartbeat(service, 0, "running", now)
+
+
+class _Hanging(_Client):
+    """An action client whose goals are accepted; the first wait for the result is when
+    ``on_wait`` happens (a kill). Then the goal never ends (its server died), or it
+    succeeds when ``ends``."""
+
+    def __init__(self, on_wait, ends: bool = False) -> None:
+        super().__init__()
+        self.on_wait, self.ends = on_wait, ends
+        self.cancelled = 0
+
+    def send_goal(self, goal: m.Message, timeout: float = 2.0) -> _Handle:
+        self.sent.append(goal)
+        client = self
+
+        class Pending(_Handle):
+            def result(self, timeout: float | None = None, poll_s: float = 2.0):
+                if client.on_wait is not None:
+                    client.on_wait()
+                    client.on_wait = None
+                    return None
+                if client.ends:
+                    return m.ActionResult(stamp=0.0, goal_id="g", status="succeeded")
+                return None
+
+            def cancel(self, timeout: float = 1.0) -> bool:
+                client.cancelled += 1
+                return False  # nobody there to acknowledge it
+
+        return Pending(True, "", None)
+
+
+def test_a_request_to_a_service_that_dies_ends_at_once_not_after_the_action_timeout() -> None:
+    robot, node = _bus_robot()
+    nav = _Hanging(lambda: node.watch.liveliness("navigation", False, time.monotonic()))
+    node.clients["navigate_to"] = nav
+    t0 = time.monotonic()
+    out = robot.navigate_to(pose=(1.0, 2.0, 0.0))
+    assert time.monotonic() - t0 < 1.0  # (action_timeout is 900 s)
+    assert not out.ok and not out.rejected and out.interrupted == "navigation"
+    assert "navigation went away" in out.reason and nav.cancelled == 1
+    # a restart while a manipulation goal runs: locomotion's ends it too (the robot lies)
+    arm = _Hanging(lambda: _restart(node.watch, "locomotion"))
+    node.clients["move_to_posture"] = arm
+    out = robot.move_to_posture("stow")
+    assert out.interrupted == "locomotion" and arm.cancelled == 1
+    # but perception's does not: a grasp does not need it
+    grasp = _Hanging(lambda: _restart(node.watch, "perception"), ends=True)
+    node.clients["grasp"] = grasp
+    plan = GraspPlan((0.4, 0.0, -0.2), 0.0, "vertical", 0.05, "mug",
+                     BasePose(2.0, 1.0, 0.27, math.pi / 2), (-0.4, 2.0, 0.07))  # fmt: skip
+    assert robot.grasp(plan).ok and grasp.cancelled == 0
+    assert robot.outages()["perception"] == 1
+
+
+def test_nothing_is_sent_to_a_service_that_is_away() -> None:
+    robot, node = _bus_robot()
+    node.watch.liveliness("locomotion", False, time.monotonic())
+    out = robot.approach((1.0, 2.0), 0.4)
+    assert out.interrupted == "locomotion" and "not running" in out.reason
+    assert robot.move_to_posture("stow").interrupted == "locomotion"
+    assert node.clients["approach"].sent == [] and node.clients["move_to_posture"].sent == []
+    assert robot.outages()["locomotion"] == 1
+    assert not robot.wait_for_services(["locomotion"], timeout=0.05)
+    _restart(node.watch, "locomotion")
+    assert robot.wait_for_services(["locomotion"], timeout=0.05)
+    assert robot.approach((1.0, 2.0), 0.4).ok
+
+
+def test_after_restarts_old_readings_are_not_trusted() -> None:
+    robot, node = _bus_robot()
+    node.payload.put(m.Payload(stamp=12.0, mass=0.12, object_name="mug"))
+    assert robot.holding() is True
+    node.watch.liveliness("manipulation", False, time.monotonic())
+    assert robot.holding() is None  # nobody to say
+    _restart(node.watch, "manipulation")
+    assert robot.holding() is None  # the new manipulation has not said what it holds
+    node.payload.put(m.Payload(stamp=13.0, mass=0.12, object_name="mug"))
+    assert robot.holding() is True
+    # navigation: its last pose is from before; a new one converging is not settled
+    assert robot.localised()
+    _restart(node.watch, "navigation")
+    assert not robot.localised()
+    node.map_pose.put(node.map_pose.msg.replace(status="converging"))
+    assert not robot.localised()
+    node.map_pose.put(node.map_pose.msg.replace(status="localized"))
+    assert robot.localised()
+    # perception: once forgotten, only what it saw from then on
+    node.tracks.put(
+        m.ObjectTracks(
+            stamp=12.0,
+            ids=[5, 6],
+            labels=["mug", "bowl"],
+            centroids=[[2.0, 2.0, 0.04]] * 2,
+            extents=[[0.1] * 3] * 2,
+            confidences=[0.9] * 2,
+            observations=[4] * 2,
+            last_seen=[11.0, 12.0],
+            confirmed=[1, 1],
+            map_centroids=[[0.0, 0.0, 0.0]] * 2,
+        )  # fmt: skip
+    )
+    assert [o.track_id for o in robot.objects()] == [5, 6]
+    robot.forget_objects()  # at robot time 12.0
+    assert [o.track_id for o in robot.objects()] == [6]
+
+
+class _Replies(_Cache):
+    """Locomotion's health as it answers: the next message each time it is read."""
+
+    def __init__(self, *msgs: m.Message) -> None:
+        super().__init__(msgs[0])
+        self.msgs = list(msgs)
+
+    def get(self) -> object:
+        if len(self.msgs) > 1:
+            self.msg = self.msgs.pop(0)
+        else:
+            self.msg = self.msgs[0]
+        return self.msg
+
+
+def _health(phase: str, state: str = "ok", upright: bool = True) -> m.LocomotionHealth:
+    reason = "" if state == "ok" else "fell"
+    return m.LocomotionHealth(stamp=12.0, state=state, reason=reason, phase=phase,
+                              upright=upright)  # fmt: skip
+
+
+def test_after_a_locomotion_restart_the_robot_is_stood_up() -> None:
+    robot, node = _bus_robot()
+    _restart(node.watch, "locomotion")
+    node.health = _Replies(_health("damp"), _health("standing_up"), _health("balance"))
+    assert robot.stand_up().ok
+    assert [msg.mode for msg in node.pub_mode.sent] == ["stand"]
+    # tripped: recover first (stand would be refused)
+    node.pub_mode.sent.clear()
+    node.health = _Replies(_health("safe", "tripped"), _health("righting", "tripped", False),
+                           _health("standing_up"), _health("balance"))  # fmt: skip
+    assert robot.stand_up().ok
+    assert [msg.mode for msg in node.pub_mode.sent] == ["recover"]
+
+
+def test_standing_up_trusts_no_health_from_before_the_restart() -> None:
+    quick = replace(CFG, node=replace(CFG.node, stand_timeout=0.2))
+    robot, node = _bus_robot(config=quick)
+    node.health.put(_health("balance"))  # the dead locomotion's last word
+    time.sleep(0.01)
+    _restart(node.watch, "locomotion")
+    out = robot.stand_up()
+    assert not out.ok and "no health" in out.reason
+    node.watch.liveliness("locomotion", False, time.monotonic())
+    out = robot.stand_up()
+    assert not out.ok and out.interrupted == "locomotion"
