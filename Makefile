@@ -42,8 +42,12 @@ $(UNITREE_STAMP): $(STAMP)
 	$(PY) -m pip install -q --no-deps unitree-sdk2py-dimos==1.0.3
 	@touch $(UNITREE_STAMP)
 
+# A short tidy-up in the living room (two objects, drawers shut, ~10 min on 2 cores).
+DEMO_ARGS ?= --scenario short-9 --json demo-output/tidyup.json --rerun demo-output/tidyup.rrd \
+	--set behavior.drawers.places=[] --set 'behavior.task.zones=["living_floor","living_table"]'
+
 demo: $(STAMP)
-	MUJOCO_GL=$${MUJOCO_GL:-egl} $(VENV)/bin/quadmanip demo
+	MUJOCO_GL=$${MUJOCO_GL:-egl} $(VENV)/bin/quadmanip tidyup $(DEMO_ARGS)
 
 test: $(STAMP) $(UNITREE_STAMP)
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m pytest

@@ -290,6 +290,7 @@ _TABLE: tuple[Topic, ...] = (
     row("navigation", "pose", m.MapPose, "sensor", "out", "base pose in the map + map->odom"),
     row("navigation", "path", m.Path, "event", "out", "the planned path (map frame)"),
     row("navigation", "costmap", m.OccupancyGrid, "sensor", "out", "costmap (1 Hz)"),
+    row("navigation", "initial_pose", m.InitialPose, "event", "in", "pose hint: relocalise"),
     # perception
     row("perception", "detections", m.Detections, "sensor", "out", "detections per frame"),
     row("perception", "objects", m.ObjectTracks, "event", "out", "object memory (2 Hz)"),

@@ -56,6 +56,7 @@ __all__ = [
     "GroundTruthPoses",
     "Heartbeat",
     "Imu",
+    "InitialPose",
     "JointState",
     "HEALTH_STATES",
     "JUDGE_LOCATIONS",
@@ -612,6 +613,32 @@ class MapPose(Message):
     status: str = string(
         choices=("localized", "converging", "mapping", "lost"), default="localized"
     )
+
+
+@message("qm.InitialPose", (1, 0))
+class InitialPose(Message):
+    """A hint of where the base is in the ``map`` frame (x, y, yaw), with the standard
+    deviations of that belief (``std_xy`` m on x and y, ``std_yaw`` rad): ROS's
+    ``/initialpose``. Navigation re-initialises its localisation around it when it is not
+    localised yet or its estimate disagrees strongly with the hint (services/navigation);
+    the behavior service sends it when navigation comes back after a restart, from the
+    last pose navigation gave before (carried along by the odometry since). ``source``
+    says who sent it and why, for the log."""
+
+    stamp: float
+    x: float
+    y: float
+    yaw: float
+    std_xy: float = 0.1
+    std_yaw: float = 0.1
+    source: str = string(max_len=256, default="")
+
+    def _check(self) -> None:
+        _check_heading(self.yaw, "InitialPose.yaw")
+        for name in ("std_xy", "std_yaw"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and 0.0 < v <= 100.0):
+                raise MessageError(f"InitialPose.{name} must be in (0, 100], got {v}")
 
 
 @message("qm.Path", (1, 0))

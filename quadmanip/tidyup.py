@@ -236,7 +236,9 @@ class TidyRun:
         if self.budget_s is not None:
             args["behavior"] += ["--set", f"task.trial_budget_s={self.budget_s}"]
         if self.rerun:
-            args["viz"] = ["--set", f"output={self.rerun}"]
+            rrd = Path(self.rerun).resolve()
+            rrd.parent.mkdir(parents=True, exist_ok=True)
+            args["viz"] = ["--set", f"output={json.dumps(str(rrd))}"]
         for k, v in self.extra.items():
             args[k] = args.get(k, []) + v
         return args

@@ -13,9 +13,11 @@ The task itself (:mod:`.tidy_task`) is transport-free; this node gives it a
   tokens ``*/alive`` (which services run). Never anything under ``sim/gt``.
 
 Outputs: ``behavior/progress`` (:class:`~quadmanip.common.messages.TaskProgress`, at every
-step change and every ``progress_period``; ``idle`` before the first task) and
+step change and every ``progress_period``; ``idle`` before the first task),
 ``locomotion/mode`` (``stand`` when the robot lies damped before a task or after
-locomotion restarted; ``recover`` first when it is tripped or lies on a side).
+locomotion restarted; ``recover`` first when it is tripped or lies on a side) and
+``navigation/initial_pose`` (where the robot is, for a navigation that came back after a
+restart: :class:`PoseHint`).
 
 Action (server): ``tidy_up`` (``TidyUpGoal``: a class filter and a time budget; the
 result is the final ``TaskProgress``). With ``[node] start_on_launch`` the node runs one
@@ -64,6 +66,7 @@ from quadmanip.services.behavior.frames import (
     Pose2,
     base_from_odom,
     carried_over,
+    compose,
     map_from_odom,
     odom_from_base,
     odom_from_map,
@@ -78,7 +81,7 @@ from quadmanip.services.behavior.tidy_task import (
     knowledge_problems,
 )
 
-__all__ = ["BehaviorNode", "BusRobot", "main", "progress_message"]
+__all__ = ["BehaviorNode", "BusRobot", "PoseHint", "main", "progress_message"]
 
 #: action name -> the service that serves it
 CLIENTS = {
@@ -92,6 +95,13 @@ CLIENTS = {
     "locate_handle": "perception",
 }
 STAND_EVERY_S = 2.0  # wall s between stand requests while the robot lies damped
+# pose hints to a navigation that came back after a restart (PoseHint)
+HINT_EVERY_S = 2.0  # wall s between repeats while navigation has not taken it
+HINT_TRIES = 5
+HINT_STD_XY = 0.1  # m: the least doubt a hint claims (navigation's own start spread)
+HINT_STD_YAW = math.radians(5.0)
+HINT_STD_LAID = (0.25, math.radians(15.0))  # m, rad: locomotion restarted since
+HINT_AGREE_XY = 0.3  # m: navigation localised this near the hint has it (its hint_agree_xy)
 
 
 def _xyz(v: Sequence[float]) -> Point3:
@@ -144,6 +154,100 @@ def progress_message(p: Progress, stamp: float) -> m.TaskProgress:
 def _ended(state: str, reason: str, budget: float) -> Progress:
     """The snapshot of a task that never started (``state`` ``idle`` or ``failed``)."""
     return Progress(state, reason, "", "", 0.0, budget, (), (), 0, ())
+
+
+class PoseHint:
+    """Tells a restarted navigation where the robot is (``navigation/initial_pose``).
+
+    A new navigation process starts its localisation at the configured start pose, not
+    where the robot stands; navigation re-initialises around a pose hint when its filter
+    disagrees strongly with it (:meth:`quadmanip.services.navigation.amcl.ParticleFilter.hint`).
+    This remembers the last ``localized`` map pose of navigation's current run (with its
+    map->odom and locomotion's life at the time) and, when navigation comes back after a
+    restart, sends that pose carried along by the odometry since (the map->odom does not
+    change while nobody corrects it), with the pose's own doubt (at least navigation's
+    usual start spread). When locomotion restarted meanwhile its odometry started again,
+    so the pose is sent as it was, with a wider doubt (the robot lay down and stood up).
+
+    The hint is repeated every ``HINT_EVERY_S`` (wall) until navigation's pose from its new
+    run is ``localized`` within ``HINT_AGREE_XY`` of it, at most ``HINT_TRIES`` times (a
+    hint published as the new process's subscriber is still being matched can be lost);
+    after that navigation owns the pose. No transport here: :meth:`update` is fed by the
+    node's control loop and returns the message to publish.
+    """
+
+    def __init__(self) -> None:
+        self.last: tuple[m.MapPose, int] | None = None  # pose, locomotion's life then
+        self.pending = False
+        self.tries = 0
+        self.t_sent = -math.inf
+        self.sent: m.InitialPose | None = None
+
+    def hint(self, stamp: float, odometry: m.Odometry | None, loco_life: int) -> m.InitialPose:
+        """The hint for now (only while a last pose is known)."""
+        assert self.last is not None
+        mp, life = self.last
+        cov = np.asarray(mp.covariance, dtype=float)
+        sxy = math.sqrt(max(float(cov[0, 0]), float(cov[1, 1]), 0.0))
+        syaw = math.sqrt(max(float(cov[2, 2]), 0.0))
+        if odometry is not None and life == loco_life:
+            m2o = (float(mp.map_to_odom[0]), float(mp.map_to_odom[1]), float(mp.map_to_odom[2]))
+            od = odometry
+            pose = compose(m2o, (float(od.position[0]), float(od.position[1]),
+                                 yaw_from_quat(od.orientation)))  # fmt: skip
+            floor, why = (HINT_STD_XY, HINT_STD_YAW), "carried by the odometry"
+        else:
+            pose = (float(mp.x), float(mp.y), float(mp.yaw))
+            floor, why = HINT_STD_LAID, "locomotion restarted since"
+        return m.InitialPose(
+            stamp=stamp,
+            x=pose[0],
+            y=pose[1],
+            yaw=wrap(pose[2]),
+            std_xy=max(sxy, floor[0]),
+            std_yaw=max(syaw, floor[1]),
+            source=f"behavior: the last pose before navigation restarted ({why})",
+        )
+
+    def update(
+        self,
+        wall: float,
+        stamp: float,
+        nav_pose: m.MapPose | None,
+        odometry: m.Odometry | None,
+        loco_life: int,
+        nav_restarted: bool = False,
+    ) -> m.InitialPose | None:
+        """One control step at wall time ``wall`` (robot time ``stamp``): ``nav_pose`` is
+        navigation's newest pose *from its current run* (None when it does not run or has
+        not spoken since it started), ``loco_life`` counts locomotion's outages,
+        ``nav_restarted`` says navigation just came back after a restart. Returns the hint
+        to publish now, or None."""
+        if nav_restarted:
+            self.pending = self.last is not None
+            self.tries, self.t_sent, self.sent = 0, -math.inf, None
+        localised = nav_pose if nav_pose is not None and nav_pose.status == "localized" else None
+        if self.pending and localised is not None:
+            hint = self.hint(stamp, odometry, loco_life)
+            if (
+                math.hypot(float(localised.x) - hint.x, float(localised.y) - hint.y)
+                <= HINT_AGREE_XY
+            ):
+                self.pending = False  # navigation has taken it (or knew)
+        if not self.pending:
+            if localised is not None:
+                self.last = (localised, loco_life)
+            return None
+        if wall - self.t_sent < HINT_EVERY_S:
+            return None
+        if self.tries >= HINT_TRIES:
+            self.pending = False  # navigation owns the pose: the task will see where it is
+            return None
+        hint = self.hint(stamp, odometry, loco_life)
+        self.tries += 1
+        self.t_sent = wall
+        self.sent = hint
+        return hint
 
 
 class BusRobot:
@@ -429,6 +533,7 @@ class BehaviorNode(Service):
     outputs = (
         Output("behavior/progress", doc="the task's step and per-object record"),
         Output("locomotion/mode", doc="stand up before a task"),
+        Output("navigation/initial_pose", doc="where the robot is, after navigation restarted"),
     )
     actions = ("tidy_up",)
     loop_period = 0.1
@@ -451,6 +556,8 @@ class BehaviorNode(Service):
         self.health = self.latest("locomotion/health")
         self.pub_progress = self.publisher("behavior/progress")
         self.pub_mode = self.publisher("locomotion/mode")
+        self.pub_hint = self.publisher("navigation/initial_pose")
+        self.pose_hint = PoseHint()
         self.watch = ServiceWatch(cfg.node.required_services, cfg.node.heartbeat_timeout)
         self.bus.watch_liveliness(
             lambda service, alive: self.watch.liveliness(service, alive, time.monotonic())
@@ -488,15 +595,32 @@ class BehaviorNode(Service):
         """Services gone silent; progress about once a second between step changes (and
         ``idle`` before)."""
         self.watch.tick(time.monotonic())
+        nav_restarted = False
         for t in self.watch.drain():
             if t.what == "back":
                 self.log.info("service running", service=t.service)
+                if t.service == "navigation" and self.watch.outages().get("navigation", 0):
+                    nav_restarted = True
             else:
                 self.log.warning("service went away", service=t.service, why=t.why)
+        self._hint_pose(nav_restarted)
         if time.monotonic() - self.t_published < self.config.node.progress_period:
             return
         task = self.task
         self._publish(task.progress() if task is not None else self.last)
+
+    def _hint_pose(self, nav_restarted: bool) -> None:
+        """Feed :class:`PoseHint`; publish the hint it asks for."""
+        nav = None
+        if self.watch.running("navigation"):
+            nav = fresh(self.map_pose, self.watch.running_since("navigation"))
+        loco_life = self.watch.outages().get("locomotion", 0)
+        hint = self.pose_hint.update(time.monotonic(), self.bus.clock(), nav,
+                                     self.odometry.get(), loco_life, nav_restarted)  # fmt: skip
+        if hint is not None:
+            self.pub_hint.publish(hint)
+            self.log.info("pose hint to navigation", x=round(hint.x, 3), y=round(hint.y, 3),
+                          yaw=round(hint.yaw, 3), tries=self.pose_hint.tries)  # fmt: skip
 
     # ------------------------------------------------------------------ running a task
     def _get_ready(self, cancelled: Callable[[], bool]) -> str:

@@ -128,6 +128,11 @@ class AmclConfig:
     """Fraction of the scan that must fit the map for a correction to be trusted."""
     pose_penalty: float = 10.0
     """Log-weight taken from a particle standing on an occupied, unknown or off-map cell."""
+    # pose hints (``navigation/initial_pose``, :meth:`ParticleFilter.hint`):
+    hint_agree_xy: float = 0.3
+    """A converged estimate within this distance (m) of a pose hint is kept."""
+    hint_agree_yaw: float = math.radians(15.0)
+    """... and within this angle (rad) of the hint's heading."""
 
 
 def kld_sample_count(k: np.ndarray | int, epsilon: float, z: float) -> np.ndarray:
@@ -238,6 +243,51 @@ class ParticleFilter:
         """Particles spread uniformly over the map's free space and all headings (global
         localisation: the robot does not know where it is)."""
         self._reset(self._random_particles(self.config.global_particles))
+
+    def hint(
+        self,
+        pose: Pose2,
+        std: tuple[float, float, float],
+        odom_pose: Pose2 | None = None,
+    ) -> str:
+        """An outside belief of where the robot is (a pose hint: an operator's "2D pose
+        estimate", or the behavior service telling a restarted navigation where the robot
+        was). Returns what was done: ``"initialized"`` (particles drawn about ``pose`` with
+        ``std``) or ``"kept"`` (the estimate stays; the hint is ignored).
+
+        The filter re-initialises only when it has not converged, or when its converged
+        estimate is farther from the hint than ``hint_agree_xy`` / ``hint_agree_yaw``:
+
+        - not converged: the hint narrows a search that has not settled, which is what it
+          is for (a global start, or a start pose far from where the robot stands);
+        - converged and near the hint: the filter has weighed scans on the map since it
+          converged, so its estimate is better than a hint that may be a moment old or
+          carried by drifting odometry; re-drawing the particles would only widen the
+          pose again for a few scans (a restarted navigation that happens to start where
+          the robot is must not be disturbed);
+        - converged far from the hint: a filter converges on its *prior* as easily as on
+          the truth. A restarted navigation draws its particles about the configured start
+          pose with a spread already below the convergence bound, so it reports
+          ``localized`` at the start pose at once, and scans can take long to pull a tight
+          wrong cluster away (Augmented MCL injects only once the fit degrades). A strong
+          disagreement therefore means the prior was wrong, and the hint wins.
+
+        ``odom_pose`` is the odometry pose the hint refers to (the newest one): the
+        particles then stand at that odometry, so the next :meth:`predict` moves them by
+        the motion since the hint, not since the last filter step.
+        """
+        pose = (float(pose[0]), float(pose[1]), float(wrap(pose[2])))
+        est = self._estimate
+        if est is not None and est.converged and len(self.particles):
+            here, _ = self.estimate()
+            dxy = math.hypot(here[0] - pose[0], here[1] - pose[1])
+            dyaw = abs(float(wrap(here[2] - pose[2])))
+            if dxy <= self.config.hint_agree_xy and dyaw <= self.config.hint_agree_yaw:
+                return "kept"
+        if odom_pose is not None:
+            self._odom_latest = (float(odom_pose[0]), float(odom_pose[1]), float(odom_pose[2]))
+        self.initialize(pose, std)
+        return "initialized"
 
     def _reset(self, particles: np.ndarray) -> None:
         self.particles = particles

@@ -41,6 +41,9 @@ class NodeConfig:
     min_base_height: float = 0.22  # m, odometry's base height
     max_tilt: float = 0.2  # rad
     min_hit_height: float = 0.05  # m: lower returns are the floor seen by a tilted scan
+    # navigation/initial_pose: a hint older than this (robot s, against the odometry) is
+    # ignored (the robot may have walked since); in mapping mode every hint is ignored
+    hint_max_age: float = 5.0
 
 
 @dataclass(frozen=True)

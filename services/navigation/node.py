@@ -1,7 +1,10 @@
 """The navigation service: map, localise, plan and walk (paper Sections 5.1-5.3).
 
-Inputs: ``sim/scan`` (2D LiDAR), ``locomotion/odometry``, ``locomotion/health``; never
-anything under ``sim/gt``. Outputs: ``locomotion/cmd_vel`` (navigation owns the body
+Inputs: ``sim/scan`` (2D LiDAR), ``locomotion/odometry``, ``locomotion/health``,
+``navigation/initial_pose`` (a pose hint: localisation re-initialises around it when it
+is not localised or disagrees strongly, :meth:`.amcl.ParticleFilter.hint`; the behavior
+service sends one when navigation comes back after a restart); never anything under
+``sim/gt``. Outputs: ``locomotion/cmd_vel`` (navigation owns the body
 velocity while one of its actions runs, and only then), ``navigation/map`` (on change and
 every ``map_period``), ``navigation/pose`` (map pose, covariance, map->odom),
 ``navigation/path``, ``navigation/costmap``.
@@ -121,6 +124,7 @@ class NavigationNode(Service):
         Input("sim/scan", latest_only=True, doc="2D LiDAR"),
         Input("locomotion/odometry", latest_only=True, doc="base pose in odom"),
         Input("locomotion/health", latest_only=True, doc="tripped: stop"),
+        Input("navigation/initial_pose", latest_only=True, doc="pose hint: re-localise"),
     )
     outputs = (
         Output("locomotion/cmd_vel", doc="body velocity while an action runs"),
@@ -177,6 +181,8 @@ class NavigationNode(Service):
         self.scan_cache = self.latest("sim/scan")
         self.odom_cache = self.latest("locomotion/odometry")
         self.health_cache = self.latest("locomotion/health")
+        self.hint_cache = self.latest("navigation/initial_pose")
+        self.hint_stamp = -math.inf  # of the last hint handled
         self.pub_vel = self.publisher("locomotion/cmd_vel")
         self.pub_map = self.publisher("navigation/map")
         self.pub_pose = self.publisher("navigation/pose")
@@ -368,6 +374,10 @@ class NavigationNode(Service):
         # robot time per control step (lockstep runs slower than the wall clock)
         self.dt = min(max(now - self.t_step, 1e-3), 0.2) if self.t_step > 0 else self.loop_period
         self.t_step = now
+        hint = self.hint_cache.get()
+        if hint is not None and float(hint.stamp) != self.hint_stamp:
+            self.hint_stamp = float(hint.stamp)
+            self.apply_hint(hint, odom, now)
         if float(scan.stamp) > self.last_scan_stamp:
             self.last_scan_stamp = float(scan.stamp)
             if abs(float(scan.stamp) - now) <= self.config.node.odom_max_skew and self._upright(od):
@@ -375,6 +385,27 @@ class NavigationNode(Service):
         pose = compose(self.map_to_odom, odom)
         self._publish_state(now, pose)
         self._step_job(now, pose, odom)
+
+    def apply_hint(self, hint: m.InitialPose, odom: Pose2, now: float) -> str:
+        """Handle a pose hint (``navigation/initial_pose``) at odometry ``odom``, robot time
+        ``now``; returns what was done (logged): ``initialized``, ``kept`` (the filter's
+        converged estimate agrees with it), or ``ignored: ...`` (mapping mode, where the
+        map frame is this run's own; or a hint older than ``hint_max_age``)."""
+        if self.amcl is None:
+            what = "ignored: mapping mode"
+        elif now - float(hint.stamp) > self.config.node.hint_max_age:
+            what = f"ignored: {now - float(hint.stamp):.1f} s old"
+        else:
+            std = (float(hint.std_xy), float(hint.std_xy), float(hint.std_yaw))
+            what = self.amcl.hint((float(hint.x), float(hint.y), float(hint.yaw)), std, odom)
+            if what == "initialized":
+                pose, _ = self.amcl.estimate()
+                self.map_to_odom = compose(pose, invert(odom))
+                self.status = "localized" if self.amcl.converged else "converging"
+        self.log.info("pose hint", result=what, source=hint.source,
+                      pose=[round(float(hint.x), 3), round(float(hint.y), 3),
+                            round(float(hint.yaw), 3)])  # fmt: skip
+        return what
 
     def _upright(self, od: m.Odometry) -> bool:
         """Whether the trunk stands high and level enough for its scan to be a plan view

@@ -340,6 +340,12 @@ STRATEGIES: dict[type[Message], st.SearchStrategy] = {
         ),
     ),
     m.MapPose: auto(m.MapPose),
+    m.InitialPose: auto(
+        m.InitialPose,
+        yaw=st.floats(-12.0, 12.0),
+        std_xy=st.floats(1e-6, 100.0),
+        std_yaw=st.floats(1e-6, 100.0),
+    ),
     m.Path: auto(m.Path),
     m.NavigateGoal: auto(m.NavigateGoal, tolerance_xy=positive, tolerance_yaw=positive),
     m.ApproachGoal: auto(
