@@ -25,7 +25,11 @@ which decides everything else:
   returns what to send: arm trajectories with their gravity feed-forward torques
   (:class:`ArmServo`, see ``gravity.py``), gripper commands, body-pose requests and payload
   updates for locomotion's balance model (on every grip verdict change, and every
-  ``payload_period`` while holding).
+  ``payload_period`` while holding). A service that starts with an object squeezed in
+  its fingers (it was restarted while carrying) infers the grip from the gripper's
+  readings (:class:`.gripper.GraspMonitor`) and announces the configured default mass,
+  with no object name, so a place is accepted; the hang below the tool is then
+  ``default_hang`` (the grasp goal that knew it went with the old process).
 
 Goals arrive here as the small request dataclasses below, not as bus messages.
 """
@@ -454,6 +458,9 @@ class Executive:
         if state is not self._grip_state:
             self._grip_state = state
             held = self._grasp_payload if state is GripState.HOLDING else PayloadUpdate(0.0)
+            if state is GripState.HOLDING and self.monitor.inferred:
+                # found holding at start (a restart): an object of unknown class and mass
+                held = PayloadUpdate(self.cfg.gripper.default_payload_mass)
             self._payload = PayloadUpdate(
                 held.mass, held.object_name, state, obs.gripper_gap, obs.gripper_effort
             )

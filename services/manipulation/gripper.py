@@ -18,6 +18,13 @@ still on is an object that turned or slid *within* the grip (a spoon pinched acr
 width rolling onto its 14 mm thickness while the robot walks): still ``HOLDING``, at the
 new width, counted in ``shifts``. Treating every such shift as lost made the task drop
 objects it was still carrying.
+
+A (re)started service does not know what its fingers hold: the actuator layer keeps the
+last gripper command of the process that died, so fingers that were squeezing an object
+still squeeze it. Until its first gripper command the monitor therefore infers the grip
+from the readings (``infer_at_start``): once the gap has settled, a gap above
+``empty_gap`` with at least ``hold_min_effort`` is ``HOLDING`` (``inferred``: an object of
+unknown class and mass); anything else stays ``OPEN`` (the start state).
 """
 
 from __future__ import annotations
@@ -55,6 +62,9 @@ class GripperConfig:
     # slipped out of a 30 N horizontal grasp in the full-stack trials; at 40 N it held.
     force_per_kg: float = 100.0
     rated_force: float = 0.0
+    # Until the first gripper command, infer HOLDING from settled readings (a restart
+    # while an object is in the fingers: see the module docstring).
+    infer_at_start: bool = True
 
 
 class GripState(StrEnum):
@@ -80,12 +90,16 @@ class GraspMonitor:
         self._settled_since: float | None = None
         self._weak_since: float | None = None
         self.shifts = 0
+        self._inferring = config.infer_at_start
+        self.inferred = False
+        """HOLDING was inferred from the readings at start, not seen after a close."""
 
     def command_open(self, t: float) -> tuple[float, float]:
         """Returns the ``(gap, max_force)`` of an open command and resets detection."""
         self.state = GripState.OPEN
         self.grasp_gap = None
         self._t_cmd = t
+        self._inferring = self.inferred = False
         return self.cfg.open_gap, self.cfg.max_force
 
     def command_close(self, t: float, max_force: float | None = None) -> tuple[float, float]:
@@ -96,6 +110,7 @@ class GraspMonitor:
         self._t_cmd = t
         self._settled_since = None
         self._weak_since = None
+        self._inferring = self.inferred = False
         return self.cfg.close_gap, self.max_force
 
     def update(self, t: float, gap: float, effort: float) -> GripState:
@@ -106,7 +121,9 @@ class GraspMonitor:
             speed = abs(gap - self._last[1]) / (t - self._last[0])
         self._last = (t, gap)
         eff = abs(effort)
-        if self.state is GripState.CLOSING:
+        if self.state is GripState.OPEN and self._inferring:
+            self._infer(t, gap, eff, speed)
+        elif self.state is GripState.CLOSING:
             if speed < cfg.settle_speed:
                 if self._settled_since is None:
                     self._settled_since = t
@@ -134,6 +151,23 @@ class GraspMonitor:
                     self.grasp_gap = gap  # shifted in the grip, still squeezed
                     self.shifts += 1
         return self.state
+
+    def _infer(self, t: float, gap: float, eff: float, speed: float) -> None:
+        """Before the first command: settled fingers closed on something are HOLDING."""
+        cfg = self.cfg
+        if speed >= cfg.settle_speed:
+            self._settled_since = None
+            return
+        if self._settled_since is None:
+            self._settled_since = t
+        if t - self._settled_since < cfg.settle_time:
+            return
+        if gap > cfg.empty_gap and eff >= cfg.hold_min_effort:
+            self.state = GripState.HOLDING
+            self.grasp_gap = gap
+            self.inferred = True
+            self._inferring = False
+            self._weak_since = None
 
     @property
     def holding(self) -> bool:

@@ -188,9 +188,9 @@ class ManipulationNode(Service):
                 )
             elif isinstance(c, PayloadUpdate):
                 if c.grip is not None:  # log every grip verdict once
-                    self.log.info(
-                        "grip", state=c.grip.value, gap=round(c.gap, 4), effort=round(c.effort, 2)
-                    )
+                    self.log.info("grip", state=c.grip.value, gap=round(c.gap, 4),
+                                  effort=round(c.effort, 2),
+                                  inferred=self.executive.monitor.inferred)  # fmt: skip
                 self.pub_payload.publish(
                     m.Payload(stamp=stamp, mass=c.mass, object_name=c.object_name)
                 )

@@ -275,3 +275,24 @@ def test_an_unstarted_reservation_lapses():
     assert ex.execute("a").status is Status.FAILED
     assert ex.start("b") is not None
     assert ex.accept(PostureRequest("stow"), obs).reason == "busy: move_to_posture running"
+
+
+def test_a_restart_while_carrying_announces_an_unknown_payload_and_can_place():
+    """A new manipulation process starts with the fingers still squeezing the object (the
+    actuator layer keeps the last command): it infers the grip from the readings, tells
+    locomotion once (default mass, no name) and accepts a place."""
+    ex = _executive()
+    plant = Plant(POSTURES["carry"], width=0.03)
+    plant.gap_cmd = 0.0  # the old process's close command
+    obs = plant.obs()
+    assert ex.accept(PlaceRequest((0.4, 0.0, 0.0)), obs).reason.startswith("not_holding")
+    for _ in range(200):  # 0.4 s of readings
+        plant.tick(ex)
+    payloads = [c for c in plant.sent if isinstance(c, PayloadUpdate)]
+    assert len(payloads) == 1  # one message (then the usual repeat every payload_period)
+    (p,) = payloads
+    assert p.grip is GripState.HOLDING and p.object_name == ""
+    assert p.mass == pytest.approx(CFG.gripper.default_payload_mass) and p.gap == 0.03
+    assert ex.payload.mass == pytest.approx(CFG.gripper.default_payload_mass)
+    verdict = ex.accept(PlaceRequest((0.36, 0.0, ex.floor_z + 0.05)), plant.obs())
+    assert verdict.accepted, verdict.reason

@@ -174,3 +174,59 @@ def test_heavier_objects_are_squeezed_harder_up_to_the_rated_force():
     assert grasp_force(g, 0.026) == 30.0  # the cup
     assert grasp_force(g, 0.35) == 35.0
     assert grasp_force(g, 0.414) == 40.0  # the coffee can: capped at the rated force
+
+
+# ------------------------------------------------------------------ a restart while holding
+
+
+def _start(mon: GraspMonitor, gap: float, effort: float, t_end: float = 0.5) -> list[GripState]:
+    """Readings of fingers standing still at ``gap`` with ``effort``, no command sent."""
+    return [mon.update(t, gap, effort) for t in np.arange(0.0, t_end, DT)]
+
+
+def test_a_restart_with_an_object_squeezed_infers_holding_once_settled():
+    mon = GraspMonitor(CFG)
+    states = _start(mon, 0.04, 0.8 * CFG.max_force)
+    assert states[-1] is GripState.HOLDING and mon.inferred
+    assert mon.grasp_gap == pytest.approx(0.04)
+    # only once the readings have stood still for settle_time
+    first = states.index(GripState.HOLDING)
+    assert first * DT >= CFG.settle_time - 1e-9
+    assert all(s is GripState.OPEN for s in states[:first])
+    # from then on it is an ordinary hold: the fingers meeting is LOST
+    assert mon.update(1.0, CFG.empty_gap, 0.0) is GripState.LOST
+
+
+@pytest.mark.parametrize(
+    ("gap", "effort"),
+    [
+        (0.0005, 25.0),  # closed on nothing: the fingers met, squeezing each other
+        (0.12, 0.0),  # open
+        (0.03, 0.5),  # stopped at 3 cm without effort (e.g. a limp gripper)
+    ],
+)
+def test_a_restart_without_an_object_squeezed_infers_nothing(gap, effort):
+    mon = GraspMonitor(CFG)
+    assert _start(mon, gap, effort)[-1] is GripState.OPEN and not mon.inferred
+
+
+def test_fingers_still_moving_at_start_are_not_a_grip():
+    mon = GraspMonitor(CFG)
+    t = np.arange(0.0, 0.5, DT)
+    for ti in t:  # opening at 0.1 m/s with effort (the old process's last command)
+        mon.update(ti, 0.02 + 0.1 * ti, 10.0)
+    assert mon.state is GripState.OPEN
+
+
+def test_the_first_command_ends_the_inference():
+    mon = GraspMonitor(CFG)
+    mon.command_open(0.0)
+    assert _start(mon, 0.04, 20.0)[-1] is GripState.OPEN
+    held = GraspMonitor(CFG)
+    _start(held, 0.04, 20.0)
+    assert held.inferred
+    held.command_open(1.0)
+    assert not held.inferred and held.state is GripState.OPEN
+    # and it can be switched off
+    off = GraspMonitor(GripperConfig(open_gap=0.12, infer_at_start=False))
+    assert _start(off, 0.04, 20.0)[-1] is GripState.OPEN

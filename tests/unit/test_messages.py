@@ -471,3 +471,11 @@ def test_float_fields_accept_wire_ints_but_not_bools() -> None:
     assert type(decode(_pack(["qm.Clock", 1, 0, {"stamp": 3}])).stamp) is float
     with pytest.raises(MessageError, match="float"):
         decode(_pack(["qm.Clock", 1, 0, {"stamp": False}]))
+
+
+def test_initial_pose_needs_a_positive_doubt_and_a_finite_heading() -> None:
+    hint = m.InitialPose(stamp=1.0, x=2.0, y=-1.0, yaw=3.0, std_xy=0.2, std_yaw=0.1)
+    assert m.decode(m.encode(hint)) == hint
+    for bad in ({"std_xy": 0.0}, {"std_yaw": -0.1}, {"std_xy": math.inf}, {"yaw": 100.0}):
+        with pytest.raises(m.MessageError):
+            hint.replace(**bad)
