@@ -43,7 +43,7 @@ $(UNITREE_STAMP): $(STAMP)
 	@touch $(UNITREE_STAMP)
 
 # A short tidy-up in the living room (two objects, drawers shut, ~10 min on 2 cores).
-DEMO_ARGS ?= --scenario short-9 --json demo-output/tidyup.json --rerun demo-output/tidyup.rrd \
+DEMO_ARGS ?= --scenario short-20 --json demo-output/tidyup.json --rerun demo-output/tidyup.rrd \
 	--set behavior.drawers.places=[] --set 'behavior.task.zones=["living_floor","living_table"]'
 
 demo: $(STAMP)

@@ -19,7 +19,7 @@ from quadmanip.tidyup import TidyRun
 
 pytestmark = pytest.mark.integration
 
-SCENARIO = "short-9"  # tennis ball on the floor (green box), sugar box on the table (tray)
+SCENARIO = "short-20"  # tennis ball on the floor (green box), soup can on the table (tray)
 # the living room only: the task ends when its zones are searched (the kitchen's deposit
 # furniture, with its false detections, is the benchmark's matter)
 ZONES = '["living_floor", "living_table"]'

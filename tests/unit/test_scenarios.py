@@ -15,6 +15,7 @@ from quadmanip.sim.scenarios import (
     CLEARANCE,
     DROP_GAP,
     N_OBJECTS,
+    SHORT_TABLE_BAND,
     generate,
     get_scenario,
     object_contacts,
@@ -245,6 +246,10 @@ def test_short_scenarios_floor_then_table_in_the_living_room_distinct_categories
     assert len({cat.objects[p.name].category for p in s.objects}) == 3
     assert get_scenario(f"short-{seed}") == get_scenario(f"short-{seed}x2")
     assert get_scenario(f"short-{seed}") != get_scenario(f"short-{seed + 1}")
+    table = next(t for t in _SURFACES if t.name == "living_table")
+    r = cat.objects[s.objects[1].name].footprint_radius
+    # within the arm's reach of the table's south edge (the room's side)
+    assert table.min[1] + r <= s.objects[1].position[1] <= table.min[1] + SHORT_TABLE_BAND
     _check_placed_at_rest_and_free(s)
 
 
