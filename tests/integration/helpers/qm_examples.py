@@ -75,6 +75,8 @@ _CROSS_FIELD: dict[str, dict[str, Any]] = {
         "valid": False,
     },
     "qm.RobotStatus": {"ticks": 20, "stale_ticks": 3},
+    # the given-up count is the number of objects given up (bool rows alternate, from True)
+    "qm.TaskProgress": {"failed": (N_ROWS + 1) // 2, "zones_total": N_ROWS + 2},
     "qm.ApproachGoal": {"standoff": 0.5, "heading": 1.5},
     "qm.OccupancyGrid": {
         "resolution": 0.05,
