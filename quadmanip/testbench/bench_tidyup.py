@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from quadmanip.sim.scenarios import get_scenario
-from quadmanip.tidyup import TidyRun
+from quadmanip.tidyup import TidyRun, parse_faults, service_overrides
 
 DEFAULT_SCENARIOS = ("paper-1", "paper-2", "paper-3", "paper-4", "paper-5")
 
@@ -69,7 +69,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--budget-s", type=float, help="the task's time budget per trial (sim s)")
     ap.add_argument("--timeout-s", type=float, default=4 * 3600.0, help="wall limit per trial")
     ap.add_argument("--resume", action="store_true", help="keep the trials already in --json")
+    ap.add_argument(
+        "--set", action="append", default=[], metavar="SERVICE.KEY=VALUE",
+        help="a config override for one service in every trial (repeatable)",
+    )  # fmt: skip
+    ap.add_argument(
+        "--kill", action="append", default=[], metavar="SERVICE@SECONDS",
+        help="fault trials: SIGKILL a robot service this far into every trial (repeatable)",
+    )  # fmt: skip
     args = ap.parse_args(argv)
+    try:
+        overrides = service_overrides(args.set)
+        faults = parse_faults(args.kill)
+    except ValueError as exc:
+        print(f"quadmanip bench tidyup: {exc}", file=sys.stderr)
+        return 2
     names = list(args.scenarios if args.scenarios is not None else DEFAULT_SCENARIOS)
     names += [f"seed-{s}" for s in args.seeds]
     if not names:
@@ -94,7 +108,13 @@ def main(argv: list[str] | None = None) -> int:
         _say(f"{scn.name}: {len(scn.objects)} objects ({', '.join(scn.object_names)})")
         with open(logs / f"{scn.name}.log", "w") as log:
             rep = TidyRun(
-                scn, log=log, say=sys.stdout, budget_s=args.budget_s, timeout_s=args.timeout_s
+                scn,
+                log=log,
+                say=sys.stdout,
+                budget_s=args.budget_s,
+                timeout_s=args.timeout_s,
+                service_args=overrides,
+                faults=faults,
             ).run()
         print(rep.table(), flush=True)
         trials.append(rep.to_json())
