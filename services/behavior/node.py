@@ -632,8 +632,10 @@ class BehaviorNode(Service):
             missing = sorted(set(nc.required_services) & self.watch.not_running())
             h = self.health.get()
             standing = h is not None and h.state != "tripped" and h.phase in nc.standing_phases
-            # lying damped: stand up (a trip at the start is a person's to clear: not here)
-            if h is not None and h.state != "tripped":
+            # lying damped: stand up (a trip at the start is a person's to clear: not here),
+            # once every service runs: a standing robot's control loops take most of a
+            # small computer, and the others would then start (import, load models) slowly
+            if h is not None and h.state != "tripped" and not missing:
                 mode = stand_command(h.state, h.phase, bool(h.upright))
                 if mode is not None and time.monotonic() - t_stand > STAND_EVERY_S:
                     self.pub_mode.publish(m.LocomotionMode(stamp=self.bus.clock(), mode=mode))
