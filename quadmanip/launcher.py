@@ -45,6 +45,7 @@ from dataclasses import dataclass, field
 from typing import Literal, TextIO, cast
 
 from quadmanip import services_registry
+from quadmanip.common.bus import Bus, BusConfig
 from quadmanip.common.config import load_config
 
 EXIT_OK = 0
@@ -667,3 +668,11 @@ def up(
     for note in notes:
         launcher.log(note)
     return launcher.run(stop_event)
+
+
+def observer_bus(endpoint: str) -> Bus:
+    """A program's own peer session on a private stack's router (``endpoint``), to watch
+    and drive that stack (tidyup, the test harness); it ignores ``QM_ZENOH_*``."""
+    return Bus(
+        BusConfig(mode="peer", connect=(endpoint,), listen=("tcp/127.0.0.1:0",), env_override=False)
+    )

@@ -35,8 +35,8 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from quadmanip.common import messages as m
-from quadmanip.common.bus import Bus, BusConfig
-from quadmanip.launcher import Launcher, free_endpoint, install_stop_signals
+from quadmanip.common.bus import Bus
+from quadmanip.launcher import Launcher, free_endpoint, install_stop_signals, observer_bus
 from quadmanip.sim.scenarios import Scenario, get_scenario, save_scenario_file
 
 #: The robot's own services: they would share the robot's computer (CPU is measured).
@@ -252,14 +252,7 @@ class TidyRun:
             listen=endpoint, services=list(args), service_args=args, out=self.log
         )
         self.launcher.start()
-        self.bus = Bus(
-            BusConfig(
-                mode="peer",
-                connect=(self.launcher.connect or endpoint,),
-                listen=("tcp/127.0.0.1:0",),
-                env_override=False,
-            )
-        )
+        self.bus = observer_bus(self.launcher.connect or endpoint)
 
     def _stop(self) -> None:
         if self.bus is not None:
@@ -500,6 +493,25 @@ def _progress_line(p: Any) -> str:
 
 
 # --------------------------------------------------------------------------- command
+def add_run_arguments(ap: argparse.ArgumentParser) -> None:
+    """``--set`` and ``--kill`` (:func:`service_overrides`, :func:`parse_faults`)."""
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="SERVICE.KEY=VALUE",
+        help="a config override for one service, e.g. behavior.drawers.places=[] (repeatable)",
+    )
+    ap.add_argument(
+        "--kill",
+        action="append",
+        default=[],
+        metavar="SERVICE@SECONDS",
+        help="fault trial: SIGKILL a robot service this many sim seconds into the task "
+        "(the launcher restarts it), e.g. locomotion@90 (repeatable)",
+    )
+
+
 def parse_faults(items: list[str]) -> list[tuple[str, float]]:
     """``["locomotion@90"]`` -> ``[("locomotion", 90.0)]`` (a robot service, seconds >= 0)."""
     out = []
@@ -550,25 +562,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--realtime", action="store_true", help="sim in real time, not lockstep")
     ap.add_argument("--budget-s", type=float, help="the task's time budget (sim seconds)")
     ap.add_argument("--timeout-s", type=float, default=3600.0, help="wall-clock limit")
-    ap.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="SERVICE.KEY=VALUE",
-        help="a config override for one service, e.g. behavior.drawers.places=[] (repeatable)",
-    )
-    ap.add_argument(
-        "--kill",
-        action="append",
-        default=[],
-        metavar="SERVICE@SECONDS",
-        help="fault trial: SIGKILL a robot service this many sim seconds into the task "
-        "(the launcher restarts it), e.g. locomotion@90 (repeatable)",
-    )
+    add_run_arguments(ap)
     args = ap.parse_args(argv)
     try:
-        overrides = service_overrides(args.set)
-        faults = parse_faults(args.kill)
+        overrides, faults = service_overrides(args.set), parse_faults(args.kill)
     except ValueError as exc:
         print(f"quadmanip tidyup: {exc}", file=sys.stderr)
         return 2

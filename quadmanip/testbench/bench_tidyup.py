@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from quadmanip.sim.scenarios import get_scenario
-from quadmanip.tidyup import TidyRun, parse_faults, service_overrides
+from quadmanip.tidyup import TidyRun, add_run_arguments, parse_faults, service_overrides
 
 DEFAULT_SCENARIOS = ("paper-1", "paper-2", "paper-3", "paper-4", "paper-5")
 
@@ -69,18 +69,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--budget-s", type=float, help="the task's time budget per trial (sim s)")
     ap.add_argument("--timeout-s", type=float, default=4 * 3600.0, help="wall limit per trial")
     ap.add_argument("--resume", action="store_true", help="keep the trials already in --json")
-    ap.add_argument(
-        "--set", action="append", default=[], metavar="SERVICE.KEY=VALUE",
-        help="a config override for one service in every trial (repeatable)",
-    )  # fmt: skip
-    ap.add_argument(
-        "--kill", action="append", default=[], metavar="SERVICE@SECONDS",
-        help="fault trials: SIGKILL a robot service this far into every trial (repeatable)",
-    )  # fmt: skip
+    add_run_arguments(ap)  # --set and --kill, for every trial
     args = ap.parse_args(argv)
     try:
-        overrides = service_overrides(args.set)
-        faults = parse_faults(args.kill)
+        overrides, faults = service_overrides(args.set), parse_faults(args.kill)
     except ValueError as exc:
         print(f"quadmanip bench tidyup: {exc}", file=sys.stderr)
         return 2

@@ -24,9 +24,9 @@ from typing import Any, TextIO
 import numpy as np
 from quadmanip.common import keys
 from quadmanip.common import messages as m
-from quadmanip.common.bus import Bus, BusConfig
+from quadmanip.common.bus import Bus
 from quadmanip.common.rotations import quat_to_mat, rot_z, wrap_angle, yaw_from_quat
-from quadmanip.launcher import Launcher, free_endpoint
+from quadmanip.launcher import Launcher, free_endpoint, observer_bus
 from quadmanip.sim.scenarios import Scenario, save_scenario_file
 
 __all__ = ["ActionOutcome", "StackError", "StackRun", "harness_bus"]
@@ -50,9 +50,7 @@ SETTLE_MAX_S = 4.0  # sim seconds to wait for that
 
 def harness_bus(endpoint: str) -> Bus:
     """The harness's own peer session on a private stack's router (ignores QM_ZENOH_*)."""
-    return Bus(
-        BusConfig(mode="peer", connect=(endpoint,), listen=("tcp/127.0.0.1:0",), env_override=False)
-    )
+    return observer_bus(endpoint)
 
 
 class StackError(RuntimeError):
