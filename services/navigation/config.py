@@ -29,7 +29,7 @@ class NodeConfig:
     initial_pose: tuple[float, float, float] = (0.8, 1.2, 0.0)  # x, y (m), yaw (deg) in the map
     initial_std: tuple[float, float, float] = (0.1, 0.1, 5.0)  # m, m, deg
     global_localization: bool = False
-    input_timeout: float = 1.0  # wall s without odometry or scans: stop, goals end "lost"
+    input_timeout: float = 1.0  # s without odometry (wall) or scans (robot time): "lost"
     odom_max_skew: float = 0.1  # s: a scan further than this from the odometry is skipped
     map_period: float = 5.0  # s (wall) between map publications (and on every change)
     costmap_period: float = 1.0
