@@ -120,6 +120,8 @@ class ObjectClass:
 DROP_ZONE = "dropped-at:"
 #: Name prefix of a look at an object lying outside every zone, after the memory was lost.
 RELOOK_ZONE = "relook-at:"
+#: Perception's estimate found no detection of the class at all (perception/frames.py).
+NOT_DETECTED = "not in view: no "
 #: A rejection of manipulation's place: it believes the gripper is empty.
 NOT_HOLDING = "not_holding"
 
@@ -189,6 +191,10 @@ class TaskConfig:
     trial_budget_s: float = 1500.0  # s of robot time per trial; 0: none
     ready_timeout: float = 30.0  # s of robot time to wait for a map pose at the start
     max_attempts: int = 4  # failures an object may cost before it is given up
+    # Probes from its probing area that detect no such object at all: after this many
+    # the track is taken for a false detection and given up at once (each try costs an
+    # approach, and a phantom used to eat all max_attempts of them).
+    max_unseen: int = 2
     zone_order: Literal["file", "nearest"] = "nearest"  # zones in file order or nearest next
     zones: tuple[str, ...] = ()  # the zones to search; empty: every search zone of the file
     walk_posture: str = "stow"  # the arm while walking without an object
@@ -617,6 +623,14 @@ class TidyTask:
             self._put_down()
         self.target = None
         return Step.CHOOSE_TARGET  # the next object the robot knows of, else search on
+
+    def _give_up_now(self, step: Step, reason: str) -> Step:
+        """Record the failure and give the target up whatever its attempts."""
+        rec = self.target
+        assert rec is not None
+        with self._lock:
+            rec.attempts = max(rec.attempts, self.cfg.max_attempts - 1)
+        return self._give_up_or(step, reason, Step.CHOOSE_TARGET)
 
     def _put_down(self) -> None:
         """Set a held object down on the floor ahead (after giving it up), so the gripper
@@ -1170,6 +1184,12 @@ class TidyTask:
             # perception forgot the track (not seen for a while): the class in view will do
             out, plan = self.robot.estimate_grasp(rec.label, probe.camera, -1)
         if not out.ok or plan is None:
+            if NOT_DETECTED in out.reason:
+                with self._lock:
+                    rec.unseen += 1
+                if rec.unseen >= self.cfg.max_unseen:
+                    why = f"estimate: {out.reason} ({rec.unseen} times from close by: a false detection?)"
+                    return self._give_up_now(Step.PROBE, why)
             # not in view, too far: another viewpoint (approach again from where it is now)
             return self._give_up_or(Step.PROBE, f"estimate: {out.reason}", Step.APPROACH)
         self.plan = plan

@@ -119,8 +119,11 @@ class FakeHouse:
         seconds_per_walk: float = 8.0,
         localised: bool = True,
         outages: list[Outage] | None = None,
+        phantoms: list[Thing] | None = None,
     ) -> None:
         self.things = {t.track_id: t for t in things}
+        # false detections: the memory holds them from afar, a probe detects nothing
+        self.phantoms = {t.track_id: t for t in phantoms or []}
         self.grasp_failures = {k: list(v) for k, v in (grasp_failures or {}).items()}
         self.drops = dict(drop_while_carrying or {})
         self.drop_at_the_end = drop_at_the_end  # at the walk's goal, not half way
@@ -241,7 +244,7 @@ class FakeHouse:
     # -------------------------------------------------------------- senses
     def _look(self) -> None:
         self._revive()
-        for t in self.things.values():
+        for t in (*self.things.values(), *self.phantoms.values()):
             if t is self.held:
                 continue
             dist, bearing = _bearing(self.at, t.position)
@@ -324,6 +327,8 @@ class FakeHouse:
         if (refused := self._request("estimate_grasp")) is not None:
             return refused, None
         self.t += 1.0
+        if track_id in self.phantoms:
+            return Outcome(False, f"not in view: no {label} detected"), None
         t = self.things.get(track_id)
         if t is None or t is self.held:
             return Outcome(False, "not in view"), None
@@ -590,6 +595,21 @@ def test_a_stubborn_object_is_given_up_and_the_others_are_tidied() -> None:
     assert house.things[4].released_in == ""  # never moved
     msg = progress_message(_task(house).progress(), 0.0)  # a fresh task: nothing yet
     assert msg.objects == () and msg.failed == 0
+
+
+def test_a_false_detection_is_given_up_after_two_probes_that_see_nothing() -> None:
+    things = _things()[:2]
+    ghost = replace(things[0], track_id=90, label="clamp")
+    ghost.position = (things[0].position[0] + 0.6, things[0].position[1], 0.05)
+    house = FakeHouse(things, phantoms=[ghost])
+    report = _task(house).run()
+    rec = _record(report, "clamp")
+    assert rec.given_up and not rec.grasped
+    assert rec.unseen == CFG.task.max_unseen == 2
+    assert len(rec.failures) == 2 and "false detection" in rec.failures[-1].reason
+    assert _calls(house, "estimate_grasp").count(("clamp", 90)) == 2
+    for t in things:  # the real ones are tidied all the same
+        assert _record(report, t.label).placed
 
 
 def test_an_object_dropped_on_the_way_is_found_again_and_placed() -> None:
