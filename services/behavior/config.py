@@ -32,6 +32,10 @@ class NodeConfig:
     nav_tolerance_yaw: float = 0.15  # rad
     approach_tolerance_xy: float = 0.015  # m
     approach_tolerance_yaw: float = 0.03  # rad
+    # a place's stand: the place plans from the pose the robot stands at, so +-1.5 cm
+    # buys nothing there, and near a box the approach sometimes never settled to it
+    stand_tolerance_xy: float = 0.03  # m
+    stand_tolerance_yaw: float = 0.06  # rad
     holding_min_mass: float = 0.005  # kg: a payload above this means the gripper holds something
     # Restarts (service_watch.py): a required service whose heartbeats stop for this long
     # (wall s) counts as gone, as one whose liveliness token vanished; 0: tokens only.

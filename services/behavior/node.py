@@ -429,7 +429,11 @@ class BusRobot:
         return self._act("navigate_to", goal)[0]
 
     def approach(
-        self, target: tuple[float, float], standoff: float, heading: float | None = None
+        self,
+        target: tuple[float, float],
+        standoff: float,
+        heading: float | None = None,
+        loose: bool = False,
     ) -> Outcome:
         c = self.cfg
         m2o = self._map_to_odom()
@@ -441,8 +445,8 @@ class BusRobot:
             standoff=float(standoff),
             heading=wrap(heading - m2o[2]) if heading is not None else 0.0,
             face_target=heading is None,
-            tolerance_xy=c.approach_tolerance_xy,
-            tolerance_yaw=c.approach_tolerance_yaw,
+            tolerance_xy=c.stand_tolerance_xy if loose else c.approach_tolerance_xy,
+            tolerance_yaw=c.stand_tolerance_yaw if loose else c.approach_tolerance_yaw,
         )
         return self._act("approach", goal)[0]
 

@@ -128,10 +128,16 @@ class RobotApi(Protocol):
         ...
 
     def approach(
-        self, target: tuple[float, float], standoff: float, heading: float | None = None
+        self,
+        target: tuple[float, float],
+        standoff: float,
+        heading: float | None = None,
+        loose: bool = False,
     ) -> Outcome:
         """Stand so that map point ``target`` lies ``standoff`` m straight ahead, facing
-        ``heading`` (map, rad) or, when None, facing the target (Algorithm 5)."""
+        ``heading`` (map, rad) or, when None, facing the target (Algorithm 5); to the
+        probing tolerance, or the looser stand tolerance when ``loose`` (a place's stand:
+        the place plans from wherever the robot stands)."""
         ...
 
     def move_to_posture(self, posture: str) -> Outcome:

@@ -120,6 +120,10 @@ class ObjectClass:
 DROP_ZONE = "dropped-at:"
 #: Name prefix of a look at an object lying outside every zone, after the memory was lost.
 RELOOK_ZONE = "relook-at:"
+#: Navigation's approach ended near its goal but not within the tolerance: the robot
+#: stands close to where it should, and the probe or place that follows plans from the
+#: pose it has (and asks for a step when out of reach).
+UNSETTLED = "did not settle"
 #: Perception's estimate found no detection of the class at all (perception/frames.py).
 NOT_DETECTED = "not in view: no "
 #: A rejection of manipulation's place: it believes the gripper is empty.
@@ -338,10 +342,14 @@ class _GuardedRobot:
         return self._after(self._r.navigate_to(place, pose))
 
     def approach(
-        self, target: tuple[float, float], standoff: float, heading: float | None = None
+        self,
+        target: tuple[float, float],
+        standoff: float,
+        heading: float | None = None,
+        loose: bool = False,
     ) -> Outcome:
         self._before()
-        return self._after(self._r.approach(target, standoff, heading))
+        return self._after(self._r.approach(target, standoff, heading, loose))
 
     def move_to_posture(self, posture: str) -> Outcome:
         self._before()
@@ -1169,7 +1177,7 @@ class TidyTask:
                 return self._give_up_or(Step.APPROACH, f"walk: {out.reason}", Step.APPROACH)
             self._refresh_target()
         out = self.robot.approach((rec.position[0], rec.position[1]), probe.standoff)
-        if not out.ok:
+        if not out.ok and UNSETTLED not in out.reason:
             return self._give_up_or(Step.APPROACH, f"approach: {out.reason}", Step.APPROACH)
         return Step.PROBE
 
@@ -1198,7 +1206,7 @@ class TidyTask:
             out = self.robot.approach(
                 (plan.position_map[0], plan.position_map[1]), self.cfg.probe_standoff
             )
-            if not out.ok:
+            if not out.ok and UNSETTLED not in out.reason:
                 return self._give_up_or(Step.PROBE, f"step in: {out.reason}", Step.APPROACH)
         return Step.GRASP
 
@@ -1288,8 +1296,8 @@ class TidyTask:
         assert rec is not None
         dep, _ = self._deposit()
         point, heading, yaw = self._release_point()
-        out = self.robot.approach((point[0], point[1]), dep.reach, heading)
-        if not out.ok:
+        out = self.robot.approach((point[0], point[1]), dep.reach, heading, loose=True)
+        if not out.ok and UNSETTLED not in out.reason:
             return self._give_up_or(Step.PLACE, f"stand: {out.reason}", Step.CARRY)
         for _ in range(self.cfg.place_attempts):
             out = self.robot.place(point, yaw)
@@ -1302,7 +1310,7 @@ class TidyTask:
             # out of reach: a step in (or back) and ask again
             now_dist = _dist(self._pose(), point)
             step = -self.cfg.place_step if reach[0] == TOO_FAR else self.cfg.place_step
-            self.robot.approach((point[0], point[1]), max(now_dist + step, 0.1), heading)
+            self.robot.approach((point[0], point[1]), max(now_dist + step, 0.1), heading, True)
         self.posture = ""
         # it let go somewhere other than asked (or manipulation, restarted, lost the grip)
         if self.robot.holding() is False or (out.rejected and NOT_HOLDING in out.reason):
