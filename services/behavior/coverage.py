@@ -44,7 +44,9 @@ class SearchConfig:
     turn: float = 0.6  # rad between headings ("turn")
     shift: float = 0.4  # m between side steps ("shift")
     sample: float = 0.2  # m between the zone's points that must be seen
-    dwell: float = 2.0  # s (robot time) looking from each viewpoint: tracks confirm in ~3 frames
+    # s (robot time) looking from each viewpoint: the cameras give 10 frames a second and a
+    # track confirms in 3; the search posture also looks while walking between viewpoints
+    dwell: float = 1.0
 
 
 def sees(viewpoint: Pose2, point: tuple[float, float], cfg: SearchConfig) -> bool:
