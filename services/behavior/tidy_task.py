@@ -679,11 +679,8 @@ class TidyTask:
     def _record_for(self, obj: SeenObject) -> ObjectRecord | None:
         """The record of this object: same track, or same class near where it was."""
         for rec in self.report.objects:
-            if (
-                rec.track_id == obj.track_id
-                and rec.label == obj.label
-                and rec.track_epoch == self.track_epoch
-            ):
+            # (perception may rename a track as its class votes change: same track)
+            if rec.track_id == obj.track_id and rec.track_epoch == self.track_epoch:
                 return rec
         for rec in self.report.objects:
             if (
@@ -722,8 +719,11 @@ class TidyTask:
         if rec.track_epoch != self.track_epoch:  # its track id is from a memory now gone
             return
         for obj in self.robot.objects():
-            if obj.track_id == rec.track_id and obj.label == rec.label:
+            if obj.track_id == rec.track_id:
                 rec.position = obj.position
+                if obj.label != rec.label and obj.label in self.classes and not rec.grasped:
+                    with self._lock:  # perception renamed it (its class votes changed)
+                        rec.label, rec.place = obj.label, self.classes[obj.label].place
                 return
 
     # ------------------------------------------------------------------ restarts
@@ -1118,6 +1118,8 @@ class TidyTask:
                 else:
                     rec.position, rec.track_id = obj.position, obj.track_id
                     rec.track_epoch = self.track_epoch
+                    if rec.label != obj.label and not rec.grasped:  # renamed by its votes
+                        rec.label, rec.place = obj.label, self.classes[obj.label].place
         if not found:
             if self.zone is None and not self.zones_todo:
                 return Step.DONE

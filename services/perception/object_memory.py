@@ -19,6 +19,14 @@ odom frame. :class:`ObjectMemory` fuses them over time and cameras into tracks:
   is judged on geometry alone.
 - Two tracks of one class that drift within each other's gate (two cameras' slightly
   different estimates) are merged, unless both were detected in the same frame.
+- One object, two classes: the detector may call one object a mug from one side and a
+  coffee can from another. An observation no track of its class takes, within
+  ``class_radius`` of a track of another class, is that track's; tracks of different
+  classes that come within ``class_radius`` of each other are merged. A track keeps a
+  score-weighted vote per class and is named by the largest: the task then sees one
+  object, not a real one and a phantom, and a one-off misreading does not rename it.
+  (Two different objects' centroids lie farther apart than ``class_radius``: their
+  half-sizes separate them.)
 
 ``confidence = mean score x (1 - exp(-observations / evidence_scale)) x miss_decay^misses``.
 
@@ -53,6 +61,8 @@ class MemoryConfig:
     max_gate: float = 0.40
     # Detections scoring below this are ignored.
     min_score: float = 0.0
+    # Observations and tracks of different classes this near are one object (module doc).
+    class_radius: float = 0.06
     # Observations before a track is confirmed.
     confirm_hits: int = 3
     # Consecutive in-view misses that remove a confirmed / a tentative track.
@@ -93,6 +103,8 @@ class MemoryConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0.0):
                 raise ValueError(f"MemoryConfig.{name} must be finite and > 0, got {v}")
+        if not (math.isfinite(self.class_radius) and self.class_radius >= 0.0):
+            raise ValueError(f"MemoryConfig.class_radius must be >= 0, got {self.class_radius}")
         if self.min_gate > self.max_gate:
             raise ValueError("MemoryConfig: min_gate must not exceed max_gate")
         if not 0.0 <= self.min_range < self.max_range:
@@ -157,9 +169,18 @@ class Track:
     last_seen: float
     cameras: frozenset[str] = field(default_factory=frozenset)
     confirmed: bool = False
+    # score-weighted detections per class; class_name is the largest
+    votes: dict[str, float] = field(default_factory=dict)
+
+    def vote(self, class_name: str, weight: float) -> None:
+        """Count a detection of ``class_name``; the track takes the leading class."""
+        self.votes[class_name] = self.votes.get(class_name, 0.0) + weight
+        self.class_name = max(self.votes, key=lambda c: (self.votes[c], c == self.class_name))
 
     def copy(self) -> Track:
-        return replace(self, centroid=self.centroid.copy(), extent=self.extent.copy())
+        return replace(
+            self, centroid=self.centroid.copy(), extent=self.extent.copy(), votes=dict(self.votes)
+        )
 
 
 def _as_observation(o: ObservationLike) -> Observation | None:
@@ -316,6 +337,22 @@ class ObjectMemory:
             for r, c in zip(rows, cols, strict=True):
                 if ok[r, c]:
                     out[oi[r]] = ti[c]
+        # what no track of its class took: a track of another class right there (one
+        # object the detector names two ways), the nearest, one observation each
+        taken = set(out.values())
+        for k, o in enumerate(obs):
+            if k in out:
+                continue
+            best, best_d = None, self.config.class_radius
+            for i, t in self._tracks.items():
+                if i in taken or t.class_name == o.class_name:
+                    continue
+                d = float(np.linalg.norm(t.centroid - o.centroid))
+                if d <= best_d:
+                    best, best_d = i, d
+            if best is not None:
+                out[k] = best
+                taken.add(best)
         return out
 
     def _new_track(self, o: Observation, stamp: float) -> int:
@@ -334,6 +371,7 @@ class ObjectMemory:
             last_seen=stamp,
             cameras=frozenset({o.camera}) if o.camera else frozenset(),
             confirmed=self.config.confirm_hits <= 1,
+            votes={o.class_name: o.score},
         )
         return tid
 
@@ -347,6 +385,7 @@ class ObjectMemory:
         t.score += b * (o.score - t.score)
         t.misses = 0
         t.last_seen = max(t.last_seen, stamp)
+        t.vote(o.class_name, o.score)
         if o.camera:
             t.cameras = t.cameras | {o.camera}
         t.confirmed = t.confirmed or t.observations >= cfg.confirm_hits
@@ -407,7 +446,9 @@ class ObjectMemory:
                 del self._tracks[i]
 
     def _merge(self, seen_now: set[int]) -> None:
-        """Merge same-class tracks within each other's gate (not two seen in this frame)."""
+        """Merge same-class tracks within each other's gate (not two seen in this frame),
+        and tracks of different classes within ``class_radius`` (one object named two ways:
+        the detector may name it both ways in one frame too)."""
         self._merged_into = {}
         ids = sorted(self._tracks)
         if len(ids) < 2:
@@ -416,11 +457,14 @@ class ObjectMemory:
         e = np.array([self._tracks[i].extent for i in ids])
         cls = np.array([self._tracks[i].class_name for i in ids])
         dist = np.linalg.norm(c[:, None] - c[None], axis=-1)
-        close = (dist <= self._gate(e[:, None], e[None])) & (cls[:, None] == cls[None])
+        same = cls[:, None] == cls[None]
+        close = (dist <= self._gate(e[:, None], e[None])) & same
+        close |= (dist <= self.config.class_radius) & ~same
         close &= np.triu(np.ones_like(close), k=1).astype(bool)
         for a, b in zip(*np.nonzero(close), strict=True):
             ia, ib = ids[a], ids[b]
-            if (ia in seen_now and ib in seen_now) or ia not in self._tracks:
+            both_now = ia in seen_now and ib in seen_now
+            if (both_now and same[a, b]) or ia not in self._tracks:
                 continue
             if ib not in self._tracks:
                 continue
@@ -438,6 +482,8 @@ class ObjectMemory:
             ta.first_seen = min(ta.first_seen, tb.first_seen)
             ta.last_seen = max(ta.last_seen, tb.last_seen)
             ta.cameras = ta.cameras | tb.cameras
+            for name, w in tb.votes.items():
+                ta.vote(name, w)
             ta.confirmed = ta.confirmed or tb.confirmed or n >= self.config.confirm_hits
             del self._tracks[drop]
             self._merged_into[drop] = keep
