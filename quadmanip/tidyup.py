@@ -30,10 +30,12 @@ import sys
 import tempfile
 import threading
 import time
+from collections import deque
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
+import numpy as np
 from quadmanip.common import messages as m
 from quadmanip.common.bus import Bus
 from quadmanip.launcher import Launcher, free_endpoint, install_stop_signals, observer_bus
@@ -45,6 +47,7 @@ ROBOT_SERVICES = ("locomotion", "manipulation", "perception", "navigation", "beh
 START_TIMEOUT_S = 240.0
 PRINT_EVERY_S = 5.0  # progress line period on a non-terminal output
 FALL_TILT_DEG = 60.0  # trunk tilt that counts as a fall (scoring)
+LOC_MAX_SKEW_S = 0.011  # s: a true pose this near a map pose's stamp is its truth (50 Hz)
 
 
 @dataclass
@@ -86,6 +89,11 @@ class TidyReport:
     restarts: dict[str, int] = field(default_factory=dict)
     faults: list[str] = field(default_factory=list)  # the faults injected (fault trials)
     falls: int = 0  # the trunk tipped over (ground truth, scoring)
+    # navigation's map pose against the true pose (the saved map is in the house's frame;
+    # ground truth, scoring only): over the run, and while the robot places (a place's
+    # release point is as good as this)
+    localisation_error_m: dict[str, float] = field(default_factory=dict)
+    place_localisation_error_m: dict[str, float] = field(default_factory=dict)
 
     @property
     def placed(self) -> int:
@@ -322,6 +330,17 @@ class TidyRun:
                 raise RuntimeError(f"no behavior/progress within {START_TIMEOUT_S:.0f} s")
             time.sleep(0.2)
         base = self.bus.latest("sim/gt/base")
+        nav_pose = self.bus.latest("navigation/pose")
+        true_xy: deque[tuple[float, float, float]] = deque(maxlen=400)  # stamp, x, y
+
+        def on_true(gt: m.GroundTruthPoses) -> None:
+            if "base" in gt.names:
+                x, y, _ = gt.positions[list(gt.names).index("base")]
+                true_xy.append((float(gt.stamp), float(x), float(y)))
+
+        self.bus.subscribe("sim/gt/base", on_true)
+        loc_errors: list[float] = []
+        place_errors: list[float] = []
         cpu0, t_cpu0 = self._cpu(), time.monotonic()
         c0 = clock.get()
         sim0 = float(c0.stamp) if c0 is not None else 0.0
@@ -336,6 +355,11 @@ class TidyRun:
             if faults and now_sim - sim0 >= faults[0][1]:
                 self._kill(faults.pop(0)[0], now_sim)
             self._count_falls(base.get())
+            err = _localisation_error(list(true_xy), nav_pose.get())
+            if err is not None:
+                loc_errors.append(err)
+                if p is not None and str(p.step).startswith("place"):
+                    place_errors.append(err)
             if time.monotonic() - last_cpu > 1.0:  # follow restarted children's CPU
                 self._cpu()
                 last_cpu = time.monotonic()
@@ -367,6 +391,8 @@ class TidyRun:
         rep.robot_services_cpu_cores = round(
             sum(v for k, v in rep.cpu_cores.items() if k in ROBOT_SERVICES), 3
         )
+        rep.localisation_error_m = _spread(loc_errors)
+        rep.place_localisation_error_m = _spread(place_errors)
         c = clock.get()
         rep.sim_time_s = (float(c.stamp) if c is not None else 0.0) - sim0
         rep.rtf = rep.sim_time_s / max(time.monotonic() - w_run0, 1e-6)
@@ -484,6 +510,29 @@ def _match(name: str, start_xy: tuple[float, float], records: list[dict[str, Any
         "failures": [f for r in mine for f in r["failures"]],
         "labels": sorted({r["label"] for r in mine}),
     }
+
+
+def _localisation_error(
+    truth: list[tuple[float, float, float]], nav: m.MapPose | None
+) -> float | None:
+    """m between navigation's localised map pose and the true base position ``truth``
+    (stamp, x, y) of the same instant; None when there is none that near in time."""
+    if nav is None or nav.status != "localized" or not truth:
+        return None
+    t = float(nav.stamp)
+    stamp, x, y = min(truth, key=lambda s: abs(s[0] - t))
+    if abs(stamp - t) > LOC_MAX_SKEW_S:
+        return None
+    return math.hypot(x - float(nav.x), y - float(nav.y))
+
+
+def _spread(values: list[float]) -> dict[str, float]:
+    """p50 / p95 / max and the count of ``values`` (empty: {})."""
+    if not values:
+        return {}
+    p50, p95 = np.percentile(values, [50.0, 95.0])
+    return {"p50": round(float(p50), 4), "p95": round(float(p95), 4),
+            "max": round(max(values), 4), "samples": len(values)}  # fmt: skip
 
 
 def _progress_line(p: Any) -> str:

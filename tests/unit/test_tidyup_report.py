@@ -153,3 +153,18 @@ def test_a_false_detection_of_the_class_elsewhere_is_not_the_object():
     )
     rep = _scored(_judge(["spoon", "bowl"], ["spoon"]), p)
     assert [o.found for o in rep.objects] == [True, False]
+
+
+def test_localisation_error_compares_the_map_pose_with_the_truth_of_its_instant():
+    from quadmanip.tidyup import _localisation_error, _spread
+
+    truth = [(10.00, 1.0, 2.0), (10.02, 1.01, 2.0), (10.04, 1.02, 2.0)]  # 50 Hz, walking
+    pose = m.MapPose(stamp=10.02, x=1.04, y=2.04, yaw=0.0, covariance=np.eye(3), status="localized")
+    assert _localisation_error(truth, pose) == pytest.approx(0.05)  # the 10.02 truth
+    late = m.MapPose(stamp=10.10, x=1.04, y=2.03, yaw=0.0, covariance=np.eye(3), status="localized")
+    assert _localisation_error(truth, late) is None  # no truth of that instant
+    lost = m.MapPose(stamp=10.02, x=1.04, y=2.03, yaw=0.0, covariance=np.eye(3), status="lost")
+    assert _localisation_error(truth, lost) is None
+    s = _spread([0.01, 0.02, 0.03, 0.10])
+    assert s["p50"] == pytest.approx(0.025) and s["max"] == 0.1 and s["samples"] == 4
+    assert _spread([]) == {}
