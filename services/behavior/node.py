@@ -385,7 +385,15 @@ class BusRobot:
 
     def _act(self, action: str, goal: m.Message) -> tuple[Outcome, m.Message | None]:
         """Send ``goal`` and wait for its end (cancelled with the task, or cut short when
-        its service or one of ``interrupt_all_on`` goes away)."""
+        its service or one of ``interrupt_all_on`` goes away); a request that did not
+        succeed is logged with its reason (a refusal leaves no trace in its server's log)."""
+        out, res = self._act_once(action, goal)
+        if not out.ok:
+            self.node.log.info("request not done", action=action, rejected=out.rejected,
+                               reason=out.reason)  # fmt: skip
+        return out, res
+
+    def _act_once(self, action: str, goal: m.Message) -> tuple[Outcome, m.Message | None]:
         service = CLIENTS[action]
         depends = {service, *self.cfg.interrupt_all_on} & set(self.watch.services)
         before = self.watch.outages()

@@ -1068,8 +1068,10 @@ def _bus_robot(config: BehaviorConfig = CFG, **clients: _Client):
         clients={name: clients.get(name, _Client()) for name in CLIENTS},
         watch=_running_watch(time.monotonic() - 10.0),
         pub_mode=SimpleNamespace(sent=[]),
+        log=SimpleNamespace(lines=[]),
     )
     node.pub_mode.publish = node.pub_mode.sent.append
+    node.log.info = lambda what, **kv: node.log.lines.append((what, kv))
     return BusRobot(node, lambda: False), node  # type: ignore[arg-type]
 
 
@@ -1114,6 +1116,12 @@ def test_the_adapter_reports_rejections_failures_and_what_it_holds() -> None:
     assert not out.ok and out.rejected and out.reason.startswith("lateral_out_of_range")
     out = robot.place((-1.0, 2.0, 0.3))
     assert not out.ok and not out.rejected and "slipped" in out.reason
+    # both are in the service's log with their reasons (a refusal is in no other log)
+    assert [(kv["action"], kv["rejected"]) for _, kv in node.log.lines] == [
+        ("grasp", True),
+        ("place", False),
+    ]
+    assert "lateral_out_of_range" in node.log.lines[0][1]["reason"]
     assert robot.holding() is None  # nothing heard from manipulation yet
     node.payload.msg = m.Payload(stamp=12.0, mass=0.12, object_name="mug")
     assert robot.holding() is True
