@@ -124,6 +124,8 @@ RELOOK_ZONE = "relook-at:"
 #: stands close to where it should, and the probe or place that follows plans from the
 #: pose it has (and asks for a step when out of reach).
 UNSETTLED = "did not settle"
+#: Navigation refused a goal before walking (in an obstacle, too near one, outside the map).
+REFUSED_GOAL = "rejected"
 #: Perception's estimate found no detection of the class at all (perception/frames.py).
 NOT_DETECTED = "not in view: no "
 #: A rejection of manipulation's place: it believes the gripper is empty.
@@ -214,7 +216,11 @@ class TaskConfig:
     step_back: float = 0.08  # m stepped back when the arm is too close
     step_closer: float = 0.05  # m stepped in when it is too far
     direct_approach_max: float = 1.5  # m: farther objects are walked to first
-    walk_standoff: float = 0.8  # m short of the object that walk ends
+    # A walk to a floor object ends this far short of it (m, tried in turn), on the side
+    # the robot comes from or, when navigation refuses that goal (in an obstacle), turned
+    # around the object by these angles (rad, tried in turn).
+    walk_standoffs: tuple[float, ...] = (0.8, 1.0, 0.6)
+    walk_sides: tuple[float, ...] = (0.0, 0.6, -0.6, 1.2, -1.2, 1.8, -1.8, math.pi)
     # Walks to a place's stand end this far behind it (along its heading), and the
     # approach does the last part: a stand next to furniture lies inside the costmap's
     # inflation once the LiDAR sees that furniture, and navigation then refuses the goal.
@@ -1158,14 +1164,23 @@ class TidyTask:
             if tables:
                 table = min(tables, key=lambda p: _dist(p.target, rec.position))
                 return self._walk_to_stand(table)
+        # from where the robot comes first; a goal in an obstacle (an object by the wall or
+        # a sofa) is refused at once, so the next side is tried (paper-2: a brick and a
+        # toy gun were given up on the same refused goal, tried again and again)
         bearing = math.atan2(rec.position[1] - here[1], rec.position[0] - here[0])
-        back = self.cfg.walk_standoff
-        goal = (
-            rec.position[0] - back * math.cos(bearing),
-            rec.position[1] - back * math.sin(bearing),
-            bearing,
-        )
-        return self.robot.navigate_to(pose=goal)
+        out = Outcome(False, "no walk goal")
+        for turn in self.cfg.walk_sides:
+            for back in self.cfg.walk_standoffs:
+                b = bearing + turn
+                goal = (
+                    rec.position[0] - back * math.cos(b),
+                    rec.position[1] - back * math.sin(b),
+                    b,
+                )
+                out = self.robot.navigate_to(pose=goal)
+                if out.ok or not out.reason.startswith(REFUSED_GOAL):
+                    return out
+        return out
 
     def _approach(self) -> Step:
         rec = self.target

@@ -40,7 +40,7 @@ from quadmanip.services.behavior.frames import (
     odom_from_map,
 )
 from quadmanip.services.behavior.node import progress_message
-from quadmanip.services.behavior.report import Progress, TaskReport
+from quadmanip.services.behavior.report import ObjectRecord, Progress, TaskReport
 from quadmanip.services.behavior.robot_api import GraspPlan, HandlePlan, Outcome, SeenObject
 from quadmanip.services.behavior.service_watch import ServiceWatch
 from quadmanip.services.behavior.tidy_task import (
@@ -151,6 +151,9 @@ class FakeHouse:
         self.waits: list[tuple[tuple[float, float, float], str, bool]] = []  # where, how, seeing
         self.settled_at = 0.0
         self.loose_approaches = 0
+        # walk goals within 1.1 m of these objects that navigation refuses (in an
+        # obstacle), this many times each
+        self.refuse_near: dict[str, int] = {}
         self.unsettled = 0  # approaches that end near the goal but not within tolerance
 
     # -------------------------------------------------------------- restarts
@@ -284,6 +287,12 @@ class FakeHouse:
         self.calls.append(("navigate_to", place or pose))
         if (refused := self._request("navigate_to")) is not None:
             return refused
+        for label, n in self.refuse_near.items():
+            t = next(x for x in self.things.values() if x.label == label)
+            seen = t.track_id in self.memory  # (a viewpoint walk before it was seen is fine)
+            if pose is not None and n > 0 and seen and math.dist(pose[:2], t.position[:2]) < 1.1:
+                self.refuse_near[label] -= 1
+                return Outcome(False, "rejected: the goal is in an obstacle or too close to one")
         self.t += self.walk_s
         goal = PLACES[place].stand if place else pose
         assert goal is not None
@@ -617,6 +626,28 @@ def test_a_false_detection_is_given_up_after_two_probes_that_see_nothing() -> No
     assert _calls(house, "estimate_grasp").count(("clamp", 90)) == 2
     for t in things:  # the real ones are tidied all the same
         assert _record(report, t.label).placed
+
+
+def test_a_walk_goal_in_an_obstacle_is_tried_from_other_sides() -> None:
+    house = FakeHouse(_things())
+    house.at = (2.0, 2.3, 0.0)  # 4 m west of the screwdriver: walked to first
+    task = _task(house)
+    screwdriver = house.things[2]
+    house.memory[2] = SeenObject(2, "screwdriver", screwdriver.position)
+    house.refuse_near = {"screwdriver": 4}  # the goals on the robot's side are in a sofa
+    rec = ObjectRecord("screwdriver", 2, "drawer", screwdriver.position, t_found=0.0)
+    assert task._walk_near(rec).ok
+    goals = [p for what, p in house.calls if what == "navigate_to"]
+    assert len(goals) == 5 and house.refuse_near["screwdriver"] == 0
+    # the side it comes from at 0.8, 1.0 and 0.6 m, then turned: facing the object each time
+    assert [round(math.dist(g[:2], screwdriver.position[:2]), 2) for g in goals[:3]] == [
+        0.8,
+        1.0,
+        0.6,
+    ]
+    assert goals[0][2] == pytest.approx(0.0) and goals[3][2] == pytest.approx(0.6)
+    for g in goals:
+        assert _bearing(g, screwdriver.position)[1] == pytest.approx(0.0, abs=1e-9)
 
 
 def test_an_approach_that_ends_near_but_unsettled_goes_on_from_there() -> None:
