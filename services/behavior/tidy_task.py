@@ -188,6 +188,10 @@ class DrawerConfig:
     tool_drawer_open: float = 0.24
     max_pull: float = 0.19  # m one pull moves at most (the arm's and the body's travel)
     attempts: int = 3  # tries per pull (walk, locate, pull)
+    # Before an object that goes into a drawer is taken up, a drawer not yet open is
+    # opened again, this many more rounds per drawer (paper-2: the tools' drawer stayed
+    # shut and two tools were "placed" into it, onto the floor); still shut: given up.
+    reopen_rounds: int = 1
 
 
 @dataclass(frozen=True)
@@ -474,6 +478,7 @@ class TidyTask:
         self.zone: Place | None = None
         self.viewpoints: list[Pose2] = []
         self.view_index = 0
+        self.reopened: dict[str, int] = {}  # drawer -> rounds of opening it again
         self.last_look: int | None = None  # the view of the zone in progress looked from last
         self.posture = ""
         # target state
@@ -987,12 +992,35 @@ class TidyTask:
             rec = DrawerRecord(name)
             with self._lock:
                 self.report.drawers.append(rec)
-            want = self.drawer_cfg.open_distance
-            if name == self.drawer_cfg.tool_drawer:
-                want = max(want, self.drawer_cfg.tool_drawer_open)
-            self._open_one(rec, want)
+            self._open_one(rec, self._drawer_want(name))
         self._posture(self.cfg.walk_posture)
         return Step.GO_TO_VIEWPOINT
+
+    def _drawer_want(self, name: str) -> float:
+        dc = self.drawer_cfg
+        return (
+            max(dc.open_distance, dc.tool_drawer_open)
+            if name == dc.tool_drawer
+            else dc.open_distance
+        )
+
+    def _drawer_ready(self, rec: ObjectRecord) -> bool:
+        """The drawer ``rec`` goes into (if any) is open: opened again first (``reopen_rounds``
+        per drawer) when the opening at the start left it shut."""
+        name = self.deposits[rec.place].place
+        if name not in self.drawer_cfg.places:
+            return True  # not a drawer, or the drawers are not the task's (config)
+        drawer = next((d for d in self.report.drawers if d.place == name), None)
+        if drawer is None:
+            drawer = DrawerRecord(name)
+            with self._lock:
+                self.report.drawers.append(drawer)
+        while not drawer.ok and self.reopened.get(name, 0) < self.drawer_cfg.reopen_rounds:
+            self.reopened[name] = self.reopened.get(name, 0) + 1
+            self._say(f"{name} is shut: opening it before taking {rec.name}")
+            self._open_one(drawer, self._drawer_want(name))
+            self._posture(self.cfg.walk_posture)
+        return drawer.ok
 
     def _open_one(self, rec: DrawerRecord, want: float) -> None:
         """Pull drawer ``rec.place`` open by ``want`` m, in pulls of at most ``max_pull``
@@ -1038,7 +1066,7 @@ class TidyTask:
             if not out.ok:
                 return f"walk: {out.reason}"
         out = self.robot.approach((handle[0], handle[1]), dc.handle_standoff, heading)
-        if not out.ok:
+        if not out.ok and UNSETTLED not in out.reason:  # (the handle is located from here)
             return f"square up: {out.reason}"
         out = self._posture(dc.probe_posture)
         if not out.ok:
@@ -1136,6 +1164,8 @@ class TidyTask:
         assert rec is not None
         self.target = rec
         self.plan = None
+        if not self._drawer_ready(rec):
+            return self._give_up_now(Step.CHOOSE_TARGET, f"{self._deposit()[1].name} is shut")
         return Step.APPROACH
 
     # ------------------------------------------------------------------ one object

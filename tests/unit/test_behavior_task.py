@@ -154,6 +154,7 @@ class FakeHouse:
         # walk goals within 1.1 m of these objects that navigation refuses (in an
         # obstacle), this many times each
         self.refuse_near: dict[str, int] = {}
+        self.stuck_drawers: dict[str, int] = {}  # pulls of this drawer manipulation refuses
         self.unsettled = 0  # approaches that end near the goal but not within tolerance
 
     # -------------------------------------------------------------- restarts
@@ -424,6 +425,9 @@ class FakeHouse:
         self.calls.append(("open_drawer", (drawer.name, handle.distance)))
         if (refused := self._request("open_drawer")) is not None:
             return refused
+        if self.stuck_drawers.get(drawer.name, 0) > 0:
+            self.stuck_drawers[drawer.name] -= 1
+            return Outcome(False, "too_far: the handle is out of reach", rejected=True)
         self.t += 6.0
         self.drawers[drawer.name] = self.drawers.get(drawer.name, 0.0) + handle.distance
         return Outcome(True)
@@ -626,6 +630,36 @@ def test_a_false_detection_is_given_up_after_two_probes_that_see_nothing() -> No
     assert _calls(house, "estimate_grasp").count(("clamp", 90)) == 2
     for t in things:  # the real ones are tidied all the same
         assert _record(report, t.label).placed
+
+
+def test_a_drawer_left_shut_is_opened_again_before_a_tool_is_taken() -> None:
+    house = FakeHouse(_things())
+    house.stuck_drawers = {"drawer_top": CFG.drawers.attempts}  # every pull at the start
+    report = _task(house).run()
+    top = next(d for d in report.drawers if d.place == "drawer_top")
+    assert top.ok and house.drawers["drawer_top"] == pytest.approx(0.24)
+    assert len(top.failures) == CFG.drawers.attempts  # the three pulls at the start
+    tops = [
+        i for i, c in enumerate(house.calls) if c[0] == "open_drawer" and c[1][0] == "drawer_top"
+    ]
+    failed, again = tops[: CFG.drawers.attempts], tops[CFG.drawers.attempts :]
+    # opened again later (after a search walk), before the tool is taken up
+    between = house.calls[failed[-1] : again[0]]
+    assert any(what == "navigate_to" for what, _ in between)
+    assert again[-1] < house.calls.index(("grasp", "screwdriver"))
+    assert _record(report, "screwdriver").placed
+    assert house.things[2].released_in == "drawer_top"
+
+
+def test_a_tool_whose_drawer_stays_shut_is_given_up_not_dropped() -> None:
+    house = FakeHouse(_things())
+    house.stuck_drawers = {"drawer_top": 100}
+    report = _task(house).run()
+    rec = _record(report, "screwdriver")
+    assert rec.given_up and not rec.grasped and "drawer_top is shut" in rec.failures[-1].reason
+    assert ("grasp", "screwdriver") not in house.calls
+    for label in ("tomato_soup_can", "bowl", "baseball"):
+        assert _record(report, label).placed
 
 
 def test_a_walk_goal_in_an_obstacle_is_tried_from_other_sides() -> None:
