@@ -155,6 +155,7 @@ class FakeHouse:
         # obstacle), this many times each
         self.refuse_near: dict[str, int] = {}
         self.stuck_drawers: dict[str, int] = {}  # pulls of this drawer manipulation refuses
+        self.arm_pull = 1.0  # m: longer pulls are refused as beyond the arm's reach
         self.unsettled = 0  # approaches that end near the goal but not within tolerance
 
     # -------------------------------------------------------------- restarts
@@ -428,6 +429,9 @@ class FakeHouse:
         if self.stuck_drawers.get(drawer.name, 0) > 0:
             self.stuck_drawers[drawer.name] -= 1
             return Outcome(False, "too_far: the handle is out of reach", rejected=True)
+        if handle.distance > self.arm_pull + 1e-9:
+            why = f"unreachable: pull of {handle.distance:.2f} m: arm reaches {self.arm_pull:.2f} m only"
+            return Outcome(False, why, rejected=True)
         self.t += 6.0
         self.drawers[drawer.name] = self.drawers.get(drawer.name, 0.0) + handle.distance
         return Outcome(True)
@@ -630,6 +634,19 @@ def test_a_false_detection_is_given_up_after_two_probes_that_see_nothing() -> No
     assert _calls(house, "estimate_grasp").count(("clamp", 90)) == 2
     for t in things:  # the real ones are tidied all the same
         assert _record(report, t.label).placed
+
+
+def test_a_pull_longer_than_the_arm_reaches_is_asked_again_shorter() -> None:
+    house = FakeHouse(_things())
+    house.arm_pull = 0.12  # paper-2: "pull of 0.19 m: arm reaches 0.12 m only"
+    report = _task(house).run()
+    top = next(d for d in report.drawers if d.place == "drawer_top")
+    assert top.ok and top.opened == pytest.approx(0.24)
+    assert house.drawers["drawer_top"] == pytest.approx(0.24)
+    pulls = [c[1][1] for c in house.calls if c[0] == "open_drawer" and c[1][0] == "drawer_top"]
+    assert pulls[0] == pytest.approx(0.19) and all(p <= 0.12 for p in pulls[1:])
+    assert len(top.failures) == 1  # one refusal, then pulls the arm can make
+    assert _record(report, "screwdriver").placed
 
 
 def test_a_drawer_left_shut_is_opened_again_before_a_tool_is_taken() -> None:
