@@ -736,10 +736,15 @@ class TidyTask:
         for obj in self.robot.objects():
             if obj.track_id == rec.track_id:
                 rec.position = obj.position
-                if obj.label != rec.label and obj.label in self.classes and not rec.grasped:
-                    with self._lock:  # perception renamed it (its class votes changed)
-                        rec.label, rec.place = obj.label, self.classes[obj.label].place
+                with self._lock:
+                    self._follow_rename(rec, obj)
                 return
+
+    def _follow_rename(self, rec: ObjectRecord, obj: SeenObject) -> None:
+        """Perception renamed the track (its class votes changed): until it is grasped the
+        object goes where its new class goes (call holding the lock)."""
+        if obj.label != rec.label and obj.label in self.classes and not rec.grasped:
+            rec.label, rec.place = obj.label, self.classes[obj.label].place
 
     # ------------------------------------------------------------------ restarts
     def _pending(self) -> set[str]:
@@ -1162,8 +1167,7 @@ class TidyTask:
                 else:
                     rec.position, rec.track_id = obj.position, obj.track_id
                     rec.track_epoch = self.track_epoch
-                    if rec.label != obj.label and not rec.grasped:  # renamed by its votes
-                        rec.label, rec.place = obj.label, self.classes[obj.label].place
+                    self._follow_rename(rec, obj)
         if not found:
             if self.zone is None and not self.zones_todo:
                 return Step.DONE
