@@ -130,6 +130,9 @@ ARM_PULL = re.compile(r"arm reaches ([0-9.]+) m only")
 MIN_PULL = 0.05  # m: a shorter pull is not worth asking for
 #: Navigation refused a goal before walking (in an obstacle, too near one, outside the map).
 REFUSED_GOAL = "rejected"
+#: Navigation's approach stopped at once: furniture within its guard around the trunk on
+#: the side it would move to (navigation/node.py).
+FOOTPRINT = "touches the footprint"
 #: Perception's estimate found no detection of the class at all (perception/frames.py).
 NOT_DETECTED = "not in view: no "
 #: A rejection of manipulation's place: it believes the gripper is empty.
@@ -1199,15 +1202,28 @@ class TidyTask:
             )
         return _Probe(c.probe_table_posture, "gripper_camera", c.probe_standoff, False)
 
+    def _table_of(self, rec: ObjectRecord) -> Place | None:
+        """The search table a table object lies on (the nearest), None on the floor."""
+        if rec.position[2] <= self.cfg.table_min_z:
+            return None
+        tables = [p for p in self.places.values() if p.kind == "search_table"]
+        return min(tables, key=lambda p: _dist(p.target, rec.position)) if tables else None
+
+    def _facing(self, rec: ObjectRecord) -> float | None:
+        """The heading to stand at for ``rec``: square to its table from the table's stand
+        side (a stance turned toward an object near the table's end puts a corner of the
+        trunk against a leg, and the arm reaches across the edge at a slant); None on the
+        floor (facing the object, Algorithm 5)."""
+        table = self._table_of(rec)
+        return None if table is None else table.stand[2]
+
     def _walk_near(self, rec: ObjectRecord) -> Outcome:
         """Walk to within reach of an approach: a table object from the table's stand
         pose, a floor object to a pose short of it, facing it."""
         here = self._pose()
-        if rec.position[2] > self.cfg.table_min_z:
-            tables = [p for p in self.places.values() if p.kind == "search_table"]
-            if tables:
-                table = min(tables, key=lambda p: _dist(p.target, rec.position))
-                return self._walk_to_stand(table)
+        table = self._table_of(rec)
+        if table is not None:
+            return self._walk_to_stand(table)
         # from where the robot comes first; a goal in an obstacle (an object by the wall or
         # a sofa) is refused at once, so the next side is tried (paper-2: a brick and a
         # toy gun were given up on the same refused goal, tried again and again)
@@ -1231,13 +1247,27 @@ class TidyTask:
         assert rec is not None
         self._refresh_target()
         self.probe = probe = self._probe_for(rec)
-        if _dist(self._pose(), rec.position) > self.cfg.direct_approach_max:
+        walked = _dist(self._pose(), rec.position) > self.cfg.direct_approach_max
+        if walked:
             self._posture(self.cfg.walk_posture)
             out = self._walk_near(rec)
             if not out.ok:
                 return self._give_up_or(Step.APPROACH, f"walk: {out.reason}", Step.APPROACH)
             self._refresh_target()
-        out = self.robot.approach((rec.position[0], rec.position[1]), probe.standoff)
+        out = self.robot.approach(
+            (rec.position[0], rec.position[1]), probe.standoff, self._facing(rec)
+        )
+        if not out.ok and FOOTPRINT in out.reason and not walked:
+            # it stands against furniture (by a deposit place, a table's leg), and the
+            # approach's straight line leads into it: the planner's path leads clear first
+            # (paper-2: four such stops within a second gave an object up)
+            self._posture(self.cfg.walk_posture)
+            walk = self._walk_near(rec)
+            if walk.ok:
+                self._refresh_target()
+                out = self.robot.approach(
+                    (rec.position[0], rec.position[1]), probe.standoff, self._facing(rec)
+                )
         if not out.ok and UNSETTLED not in out.reason:
             return self._give_up_or(Step.APPROACH, f"approach: {out.reason}", Step.APPROACH)
         return Step.PROBE
@@ -1265,7 +1295,9 @@ class TidyTask:
         if probe.horizontal:
             # probed from farther back: step in so the grasp point is in reach
             out = self.robot.approach(
-                (plan.position_map[0], plan.position_map[1]), self.cfg.probe_standoff
+                (plan.position_map[0], plan.position_map[1]),
+                self.cfg.probe_standoff,
+                self._facing(rec),
             )
             if not out.ok and UNSETTLED not in out.reason:
                 return self._give_up_or(Step.PROBE, f"step in: {out.reason}", Step.APPROACH)
@@ -1306,7 +1338,7 @@ class TidyTask:
             standoff = max(now_dist - c.step_closer, c.grasp_ahead[0])
         if standoff is None:
             return Step.APPROACH
-        moved = self.robot.approach(grasp_xy, standoff)
+        moved = self.robot.approach(grasp_xy, standoff, self._facing(rec))
         if not moved.ok:
             return Step.APPROACH
         # a side probe cannot see the object from the grasping stance: start over

@@ -30,6 +30,7 @@ __all__ = [
     "HouseLayout",
     "RobotStart",
     "Room",
+    "REACH_EDGES",
     "Surface",
     "add_obstacle",
     "Table",
@@ -38,6 +39,10 @@ __all__ = [
     "camera_quat",
     "load_house",
 ]
+
+
+#: Sides of a table a robot may stand at (``Table.reach_edge``; "" for none named).
+REACH_EDGES = ("", "south", "north", "west", "east")
 
 
 @dataclass(frozen=True)
@@ -59,7 +64,9 @@ class Wall:
 
 @dataclass(frozen=True)
 class Table:
-    """A table: top centre (x, y), top size (x, y), top height; ``spawn`` if objects lie on it."""
+    """A table: top centre (x, y), top size (x, y), top height; ``spawn`` if objects lie on it,
+    ``reach_edge`` ("south", "north", "west", "east") the side a robot stands at to reach
+    its top (scenarios lay objects within reach of it; empty: anywhere on the top)."""
 
     name: str
     room: str
@@ -68,6 +75,14 @@ class Table:
     height: float
     rgba: tuple[float, float, float, float]
     spawn: bool = False
+    reach_edge: str = ""
+
+    def __post_init__(self) -> None:
+        if self.reach_edge not in REACH_EDGES:
+            raise ValueError(
+                f"table {self.name!r}: reach_edge {self.reach_edge!r} is not one of "
+                f"{', '.join(repr(e) for e in REACH_EDGES)}"
+            )
 
 
 @dataclass(frozen=True)
@@ -235,7 +250,8 @@ class DepositRegion:
 
 @dataclass(frozen=True)
 class Surface:
-    """A horizontal rectangle objects may rest on: a floor area or a table top."""
+    """A horizontal rectangle objects may rest on: a floor area or a table top (with the
+    table's ``reach_edge``)."""
 
     name: str
     kind: str  # "floor" | "table"
@@ -243,6 +259,7 @@ class Surface:
     z: float
     min: tuple[float, float]
     max: tuple[float, float]
+    reach_edge: str = ""
 
 
 @dataclass(frozen=True)
@@ -599,6 +616,7 @@ def build_house(spec: mujoco.MjSpec, house: HouseConfig) -> HouseLayout:
                     z=table.height,
                     min=(table.center[0] - sx / 2, table.center[1] - sy / 2),
                     max=(table.center[0] + sx / 2, table.center[1] + sy / 2),
+                    reach_edge=table.reach_edge,
                 )
             )
     for block in house.blocks:

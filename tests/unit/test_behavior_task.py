@@ -157,6 +157,9 @@ class FakeHouse:
         self.stuck_drawers: dict[str, int] = {}  # pulls of this drawer manipulation refuses
         self.arm_pull = 1.0  # m: longer pulls are refused as beyond the arm's reach
         self.unsettled = 0  # approaches that end near the goal but not within tolerance
+        # the robot stands against furniture: an approach from here stops at once on
+        # navigation's footprint guard, until a walk (navigate_to) leads it clear
+        self.by_furniture = False
 
     # -------------------------------------------------------------- restarts
     def _strike(self, name: str) -> Outage | None:
@@ -296,6 +299,7 @@ class FakeHouse:
                 self.refuse_near[label] -= 1
                 return Outcome(False, "rejected: the goal is in an obstacle or too close to one")
         self.t += self.walk_s
+        self.by_furniture = False
         goal = PLACES[place].stand if place else pose
         assert goal is not None
         if self.held is not None and self.drops.get(self.held.label, 0) > 0:
@@ -316,6 +320,9 @@ class FakeHouse:
         self.loose_approaches += bool(loose)
         if (refused := self._request("approach")) is not None:
             return refused
+        if self.by_furniture:
+            self.t += 0.2
+            return Outcome(False, "blocked: an obstacle touches the footprint")
         self.t += self.walk_s / 2
         h = (
             heading
@@ -699,6 +706,38 @@ def test_a_walk_goal_in_an_obstacle_is_tried_from_other_sides() -> None:
     assert goals[0][2] == pytest.approx(0.0) and goals[3][2] == pytest.approx(0.6)
     for g in goals:
         assert _bearing(g, screwdriver.position)[1] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_an_approach_stopped_by_furniture_at_once_walks_clear_and_approaches_again() -> None:
+    # paper-2: after a place, four approaches to the next object, 1 m away, stopped
+    # within a second on the footprint guard (the deposit shelf beside the trunk), and
+    # the object was given up without a step taken
+    house = FakeHouse(_things())
+    can = house.things[1]
+    house.at = (can.position[0] - 1.0, can.position[1], 0.0)
+    house.by_furniture = True
+    house.memory[1] = SeenObject(1, "tomato_soup_can", can.position)
+    task = _task(house)
+    task.target = rec = ObjectRecord("tomato_soup_can", 1, "tray", can.position, t_found=0.0)
+    assert task._approach().value == "probe"
+    assert rec.failures == [] and not house.by_furniture
+    moves = [what for what, _ in house.calls if what in ("approach", "navigate_to")]
+    assert moves == ["approach", "navigate_to", "approach"]
+    assert math.dist(house.at[:2], can.position[:2]) == pytest.approx(CFG.task.probe_standoff)
+
+
+def test_a_table_object_is_approached_square_to_its_table() -> None:
+    # a stance turned toward an object near the table's end put a trunk corner against a
+    # table leg; square to the table from its stand side, the object straight ahead
+    house = FakeHouse(_things())
+    report = _task(house).run()
+    assert _record(report, "bowl").placed
+    table = PLACES["living_table"]
+    bowl = house.things[3].position
+    to_bowl = [a for what, a in house.calls if what == "approach" and a[0] == bowl[:2]]
+    assert to_bowl and all(h == pytest.approx(table.stand[2]) for _, _, h in to_bowl)
+    floor = [a for what, a in house.calls if what == "approach" and a[0] == (2.5, 1.4)]
+    assert floor and all(h is None for _, _, h in floor)  # the floor: facing the object
 
 
 def test_an_approach_that_ends_near_but_unsettled_goes_on_from_there() -> None:

@@ -15,7 +15,7 @@ from quadmanip.sim.scenarios import (
     CLEARANCE,
     DROP_GAP,
     N_OBJECTS,
-    SHORT_TABLE_BAND,
+    TABLE_REACH_BAND,
     generate,
     get_scenario,
     object_contacts,
@@ -160,6 +160,43 @@ def test_any_seed_gives_spaced_objects_on_their_surfaces(seed):
         assert gap >= CLEARANCE - 1e-9, (a.name, b.name, gap)
 
 
+def _reach_depth(surface, p) -> float:
+    """How far in from its table's reach edge an object's centre lies (m)."""
+    x, y = p.position[:2]
+    return {
+        "south": y - surface.min[1],
+        "north": surface.max[1] - y,
+        "west": x - surface.min[0],
+        "east": surface.max[0] - x,
+    }[surface.reach_edge]
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(min_value=0, max_value=2**31 - 1))
+def test_table_objects_lie_within_reach_of_their_tables_free_side(seed):
+    """Any seed and every paper trial: each table object within the band the arm reaches
+    from the side of the table a robot can stand at (the house names it)."""
+    surfaces = {s.name: s for s in _SURFACES}
+    tables = [s for s in _SURFACES if s.kind == "table"]
+    assert tables and all(t.reach_edge for t in tables)
+    scenarios = [generate(seed, verify=False)] + [paper_scenario(t, verify=False) for t in TABLE_4]
+    on_tables = 0
+    for scn in scenarios:
+        for p in scn.objects:
+            s = surfaces[p.surface]
+            if s.kind == "table":
+                on_tables += 1
+                assert 0.0 < _reach_depth(s, p) <= TABLE_REACH_BAND + 1e-9, (scn.name, p)
+    assert on_tables > 0
+
+
+def test_a_table_reach_edge_must_be_a_side():
+    from quadmanip.sim.world.house import Table
+
+    with pytest.raises(ValueError, match="reach_edge 'up'"):
+        Table("t", "r", (0.0, 0.0), (1.0, 0.5), 0.4, (1, 1, 1, 1), reach_edge="up")
+
+
 # ------------------------------------------------------------------ scenario files
 def test_scenario_file_round_trip_and_robot_start(tmp_path):
     import dataclasses
@@ -249,7 +286,8 @@ def test_short_scenarios_floor_then_table_in_the_living_room_distinct_categories
     table = next(t for t in _SURFACES if t.name == "living_table")
     r = cat.objects[s.objects[1].name].footprint_radius
     # within the arm's reach of the table's south edge (the room's side)
-    assert table.min[1] + r <= s.objects[1].position[1] <= table.min[1] + SHORT_TABLE_BAND
+    assert table.reach_edge == "south"
+    assert table.min[1] + r <= s.objects[1].position[1] <= table.min[1] + TABLE_REACH_BAND
     _check_placed_at_rest_and_free(s)
 
 
