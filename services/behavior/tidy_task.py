@@ -226,6 +226,7 @@ class TaskConfig:
     side_probe_back: float = 0.70  # m farther back for the front camera (below a table top)
     step_back: float = 0.08  # m stepped back when the arm is too close
     step_closer: float = 0.05  # m stepped in when it is too far
+    reach_resolution: float = 0.01  # m: a narrower band of refused stances is given up
     direct_approach_max: float = 1.5  # m: farther objects are walked to first
     # A walk to a floor object ends this far short of it (m, tried in turn), on the side
     # the robot comes from or, when navigation refuses that goal (in an obstacle), turned
@@ -492,6 +493,9 @@ class TidyTask:
         self.target: ObjectRecord | None = None
         self.probe: _Probe | None = None
         self.plan: GraspPlan | None = None
+        # (too close at, too far at): stances (m from the grasp point) the grasp planner
+        # refused for the target, so the next stance lies between them
+        self.reach: tuple[float, float] = (0.0, math.inf)
         self.done_tracks: set[int] = set()  # placed, given up or held: never a target again
         # a dropped object's track where it was last seen (in the gripper): not a target
         # until perception sees it somewhere else
@@ -1181,6 +1185,7 @@ class TidyTask:
         assert rec is not None
         self.target = rec
         self.plan = None
+        self.reach = (0.0, math.inf)
         if not self._drawer_ready(rec):
             return self._give_up_now(Step.CHOOSE_TARGET, f"{self._deposit()[1].name} is shut")
         return Step.APPROACH
@@ -1329,15 +1334,26 @@ class TidyTask:
         grasp_xy = (plan.position_map[0], plan.position_map[1])
         now_dist = _dist(self._pose(), grasp_xy)
         standoff = None
+        close, far = self.reach
         if LATERAL in out.reason:
             # too far to the side for this grasp yaw: face the grasp point again
             standoff = min(max(now_dist, c.grasp_ahead[0]), c.grasp_ahead[1])
         elif any(r in out.reason for r in TOO_CLOSE):
+            close = max(close, now_dist)
             standoff = now_dist + c.step_back
         elif TOO_FAR in out.reason:
+            far = min(far, now_dist)
             standoff = max(now_dist - c.step_closer, c.grasp_ahead[0])
         if standoff is None:
             return Step.APPROACH
+        self.reach = (close, far)
+        if close > 0.0 and math.isfinite(far):
+            # refused as too close at one stance and too far at another: the stance lies
+            # between (paper-2's bowl: too far at 0.38 m, the arm against the trunk at
+            # 0.33 m, too far again after the 8 cm step back, then given up)
+            if far - close < c.reach_resolution:
+                return Step.APPROACH  # no stance fits this grasp: probe afresh
+            standoff = (close + far) / 2
         moved = self.robot.approach(grasp_xy, standoff, self._facing(rec))
         if not moved.ok:
             return Step.APPROACH

@@ -160,6 +160,9 @@ class FakeHouse:
         # the robot stands against furniture: an approach from here stops at once on
         # navigation's footprint guard, until a walk (navigate_to) leads it clear
         self.by_furniture = False
+        # label -> (near, far): its grasp is refused from a stance nearer than ``near`` (the
+        # arm against the trunk) or farther than ``far`` (out of reach), m to the object
+        self.reach_bands: dict[str, tuple[float, float]] = {}
 
     # -------------------------------------------------------------- restarts
     def _strike(self, name: str) -> Outage | None:
@@ -389,7 +392,12 @@ class FakeHouse:
             rejected = why.startswith(("lateral", "too_", "self_"))
             return Outcome(False, why, rejected=rejected)
         dist, bearing = _bearing(self.at, t.position)
-        if not 0.2 <= dist <= 0.6 or abs(bearing) > 0.3:
+        near, far = self.reach_bands.get(t.label, (0.2, 0.6))
+        if dist < near:
+            return Outcome(
+                False, f"self_collision: the arm would touch the trunk at {dist:.3f}", rejected=True
+            )
+        if dist > far or abs(bearing) > 0.3:
             return Outcome(False, f"too_far: {dist:.2f} m at {bearing:.2f} rad", rejected=True)
         self.held = t
         self._look()
@@ -610,6 +618,29 @@ def test_too_close_steps_back() -> None:
     _, standoff, _ = house.calls[i + 1][1]  # type: ignore[misc]
     # it stood at the probing standoff: one step back from there
     assert standoff == pytest.approx(CFG.task.probe_standoff + CFG.task.step_back)
+
+
+def test_a_narrow_reach_band_is_found_between_a_too_far_and_a_too_close_stance() -> None:
+    # paper-2's bowl: too far from the probing stance, the arm against the trunk one step
+    # closer, too far again one step back, and given up; the stance lies in between
+    house = FakeHouse(_things()[:1])
+    house.reach_bands = {"tomato_soup_can": (0.34, 0.355)}
+    report = _task(house).run()
+    rec = _record(report, "tomato_soup_can")
+    assert rec.placed and len(rec.failures) == 2, rec.failures
+    assert "too_far" in rec.failures[0].reason and "self_collision" in rec.failures[1].reason
+    # probing stance (0.36) too far, one step closer (0.33) too close, then half way
+    can = _things()[0].position[:2]
+    stances = [a[1] for what, a in house.calls if what == "approach" and a[0] == can][:3]
+    assert stances == pytest.approx([0.36, 0.33, 0.345])
+
+
+def test_no_stance_between_too_close_and_too_far_is_given_up_not_walked_forever() -> None:
+    house = FakeHouse(_things()[:1])
+    house.reach_bands = {"tomato_soup_can": (0.5, 0.3)}  # nowhere
+    report = _task(house).run()
+    rec = _record(report, "tomato_soup_can")
+    assert rec.given_up and not rec.grasped and len(rec.failures) == CFG.task.max_attempts
 
 
 def test_a_stubborn_object_is_given_up_and_the_others_are_tidied() -> None:
