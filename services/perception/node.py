@@ -371,6 +371,13 @@ class PerceptionNode(Service):
         with self.lock:
             return self.odom[-1].stamp if self.odom else -math.inf
 
+    def _reach(self, goal: m.GraspRequest, camera: str) -> float:
+        """How far from the base a grasp target may lie (m): the request's, else the
+        configured reach (a side probe with the front camera looks from farther back)."""
+        node = self.config.node
+        side = camera == FRONT_CAMERA
+        return goal.max_distance or (node.max_side_probe if side else node.max_reach)
+
     def _grasp(self, handle: GoalHandle) -> m.Message:
         goal: m.GraspRequest = handle.goal  # type: ignore[assignment]
         cfg: PerceptionConfig = self.config
@@ -407,7 +414,13 @@ class PerceptionNode(Service):
                 # from what perception reports
                 pool = p.detections if label else p.reported
                 det, loc, why = pick_target(
-                    p.located, pool, p.img.depth.shape, label, near, cfg.node.track_gate
+                    p.located,
+                    pool,
+                    p.img.depth.shape,
+                    label,
+                    near,
+                    cfg.node.track_gate,
+                    self._reach(goal, p.img.camera),
                 )
                 if det is None:
                     reasons.append(f"{p.img.camera}: {why}")
@@ -419,8 +432,7 @@ class PerceptionNode(Service):
         if not choices:
             raise ActionFailed("; ".join(reasons) or "not in view")
         _, p, det, loc = max(choices, key=lambda c: c[0])
-        side = p.img.camera == FRONT_CAMERA  # a side probe looks from farther back
-        reach = goal.max_distance or (cfg.node.max_side_probe if side else cfg.node.max_reach)
+        reach = self._reach(goal, p.img.camera)
         if loc is not None and loc.distance > reach:
             raise ActionFailed(f"too far: {det.label} {loc.distance:.2f} m away (reach {reach} m)")
         img = p.img

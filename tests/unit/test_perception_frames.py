@@ -124,3 +124,13 @@ def test_surface_and_target_choice() -> None:
     assert got is None and "no mug detected" in why
     got, _, _ = pick_target(locs, dets, (240, 320))
     assert got is d_cup2  # nearest the image centre (160, 120)
+    # within reach first: a better-scored false "cup" on the furniture 2.3 m away is not
+    # the one the robot stands in front of; with none in reach, the best (reported too far)
+    far = Located(d_cup, np.array([2.3, 0, 0.4]), np.array([2.3, 0, 0.4]), np.ones(3) * 0.1, 2.3)
+    near = Located(
+        d_cup2, np.array([0.4, 0, 0.05]), np.array([0.4, 0, 0.05]), np.ones(3) * 0.1, 0.4
+    )
+    got, where, _ = pick_target([far, near], dets, (240, 320), label="cup", reach=1.3)
+    assert got is d_cup2 and where is near
+    got, where, _ = pick_target([far, near], dets, (240, 320), label="cup", reach=0.3)
+    assert got is d_cup and where is far
