@@ -674,6 +674,25 @@ def test_a_false_detection_is_given_up_after_two_probes_that_see_nothing() -> No
         assert _record(report, t.label).placed
 
 
+def test_a_detection_outside_the_searched_zones_is_not_acted_on() -> None:
+    # the kitchen's deposit furniture and cabinet gave false detections that each cost an
+    # approach and two probes: objects lie in the zones the task searches
+    things = _things()
+    ghost = Thing("clamp", 90, (7.5, 0.9, 0.05))  # kitchen floor between the boxes: no zone
+    house = FakeHouse(things, phantoms=[ghost])
+    house.memory[90] = SeenObject(90, "clamp", ghost.position)  # the memory holds it
+    report = _task(house).run()
+    assert not [r for r in report.objects if r.label == "clamp"]
+    assert ("clamp", 90) not in _calls(house, "estimate_grasp")
+    for t in things:
+        assert _record(report, t.label).placed
+    # the same, with the search restricted to the living room: the kitchen's objects too
+    house = FakeHouse(_things())
+    cfg = replace(CFG.task, zones=("living_floor", "living_table", "living_corner"))
+    report = _task(house, cfg=cfg).run()
+    assert {r.label for r in report.objects} == {"tomato_soup_can", "bowl", "baseball"}
+
+
 def test_a_pull_longer_than_the_arm_reaches_is_asked_again_shorter() -> None:
     house = FakeHouse(_things())
     house.arm_pull = 0.12  # paper-2: "pull of 0.19 m: arm reaches 0.12 m only"
