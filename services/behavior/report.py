@@ -88,6 +88,7 @@ class TaskReport:
     objects: list[ObjectRecord] = field(default_factory=list)
     zones_searched: list[str] = field(default_factory=list)
     zones_total: int = 0
+    trips: int = 0  # times locomotion's safety tripped (the robot got up again)
 
 
 @dataclass(frozen=True)

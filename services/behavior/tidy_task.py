@@ -133,6 +133,9 @@ REFUSED_GOAL = "rejected"
 #: Navigation's approach stopped at once: furniture within its guard around the trunk on
 #: the side it would move to (navigation/node.py).
 FOOTPRINT = "touches the footprint"
+#: A request ended because locomotion's safety tripped (roll or pitch beyond its limit):
+#: the legs are damped until ``recover`` (navigation and manipulation nodes).
+ROBOT_DOWN = "robot_down"
 #: Perception's estimate found no detection of the class at all (perception/frames.py).
 NOT_DETECTED = "not in view: no "
 #: A rejection of manipulation's place: it believes the gripper is empty.
@@ -257,6 +260,7 @@ class TaskConfig:
     # Restarts of the robot's services (module docstring).
     restart_timeout: float = 120.0  # s (wall) for a service that went away to run again
     restart_free: int = 2  # restarts an object may suffer before one counts as a failure
+    max_trips: int = 5  # locomotion safety trips a trial gets up from; one more ends it
     relocalise_timeout: float = 30.0  # s for a settled pose after a restart
     # m: the pose after a restart is trusted at once this near the one before (the robot
     # did not walk meanwhile); farther, it is given relocalise_timeout to settle
@@ -294,6 +298,11 @@ class _Stop(Exception):
     """Raised inside a step when the budget is spent or the task is cancelled."""
 
 
+class _Tripped(Exception):
+    """Raised inside a step when a request ended on locomotion's safety trip (the reason
+    in ``args[0]``): the robot lies damped and gets up before the step goes on."""
+
+
 class _Interrupted(Exception):
     """Raised inside a step when services went away (their names in ``services``): the
     step is abandoned where it stands, and the loop recovers (:meth:`TidyTask._after_restart`)."""
@@ -324,6 +333,8 @@ class _GuardedRobot:
                 pending.add(out.interrupted)
             if pending:
                 raise _Interrupted(pending)
+            if ROBOT_DOWN in out.reason:
+                raise _Tripped(out.reason)
         return out
 
     # pass-through
@@ -543,6 +554,8 @@ class TidyTask:
                     step = self._handlers[step]()
                 except _Interrupted as why:
                     step = self._after_restart(step, why.services)
+                except _Tripped as trip:
+                    step = self._after_trip(step, str(trip))
                 finally:  # the step's time goes to the object it was for
                     rec = before or self.target
                     if rec is not None:
@@ -783,17 +796,36 @@ class TidyTask:
         """Services that went away since the last recovery dealt with them."""
         return {s for s, n in self.raw.outages().items() if n != self._handled.get(s, 0)}
 
-    def _after_restart(self, step: Step, services: Collection[str]) -> Step:
+    def _after_restart(self, step: Step, services: Collection[str], cause: str = "") -> Step:
         """Recover from ``services`` going away during ``step``; the step that goes on.
         A restart during the recovery is recovered from too (a few rounds)."""
         for _ in range(RECOVERY_ROUNDS):
             try:
-                return self._resume(step, services)
+                return self._resume(step, services, cause)
             except _Interrupted as again:
-                services = again.services
+                services, cause = again.services, ""
+            except _Tripped as trip:  # it fell again while getting in order
+                self._count_trip(str(trip))
         raise _Stop("failed", f"services keep going away: {', '.join(sorted(services))}")
 
-    def _resume(self, step: Step, services: Collection[str]) -> Step:
+    def _count_trip(self, why: str) -> None:
+        with self._lock:
+            self.report.trips += 1
+            trips = self.report.trips
+        if trips > self.cfg.max_trips:
+            raise _Stop("failed", f"tripped {trips} times, the last: {why}")
+
+    def _after_trip(self, step: Step, why: str) -> Step:
+        """Locomotion's safety tripped during ``step`` (paper-3: a walk stepped onto an
+        object and rolled 34 degrees; every request after it failed at once and the task
+        ended with 8 objects left). Like a restart of locomotion: get up (``recover``,
+        then stand), forget the memory (the odometry it is kept in jumped as the robot
+        fell), localise again, and take the object up again where that makes sense."""
+        self._count_trip(why)
+        self._say(f"tripped ({why}): getting up")
+        return self._after_restart(step, {"locomotion"}, cause="tripped")
+
+    def _resume(self, step: Step, services: Collection[str], cause: str = "") -> Step:
         """Put the robot back in order, record the restart against the current object,
         and choose where the object is taken up again (module docstring)."""
         rec = self.target
@@ -807,7 +839,7 @@ class TidyTask:
             if memory_lost:
                 self._look_again(None)
             return Step.GO_TO_VIEWPOINT if memory_lost or rec is not None else step
-        why = f"{' and '.join(sorted(restarted))} restarted"
+        why = cause or f"{' and '.join(sorted(restarted))} restarted"
         given_up = self._restart_failure(step, why)
         held = held_step
         if step is Step.GRASP and self._holding_now():

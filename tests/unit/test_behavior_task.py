@@ -163,6 +163,10 @@ class FakeHouse:
         # label -> (near, far): its grasp is refused from a stance nearer than ``near`` (the
         # arm against the trunk) or farther than ``far`` (out of reach), m to the object
         self.reach_bands: dict[str, tuple[float, float]] = {}
+        # request name -> its nth call trips locomotion's safety (the robot falls over,
+        # the legs damped); every request fails "robot_down" until it gets up
+        self.trip_at: dict[str, int] = {}
+        self.tripped = False
 
     # -------------------------------------------------------------- restarts
     def _strike(self, name: str) -> Outage | None:
@@ -191,6 +195,17 @@ class FakeHouse:
             if svc in self.dead:
                 self.sent_while_down.append((name, svc))
                 return Outcome(False, f"{svc} is not running", interrupted=svc)
+        nth = self.counts.get(f"trip:{name}", 0) + 1
+        self.counts[f"trip:{name}"] = nth
+        if self.trip_at.get(name) == nth:
+            self.tripped, self.standing = True, False
+            if self.held is not None:  # it falls out as the robot falls, onto the floor
+                x, y, yaw = self.at
+                self.held.position = (x + 0.3 * math.cos(yaw), y + 0.3 * math.sin(yaw), 0.05)
+                self.held.on_table = False
+                self.held = None
+        if self.tripped and name != "estimate_grasp":
+            return Outcome(False, "robot_down: locomotion tripped (roll -34° beyond ±34°)")
         if name in ("navigate_to", "approach") and not self.standing:
             return Outcome(False, "velocity commands need mode stand or walk (now damp)")
         if name == "navigate_to" and not self.localised():
@@ -243,7 +258,7 @@ class FakeHouse:
         if "locomotion" in self.dead:
             return Outcome(False, "locomotion is not running", interrupted="locomotion")
         self.t += 2.0
-        self.standing = True
+        self.standing, self.tripped = True, False  # (recover first when tripped)
         return Outcome(True)
 
     def localised(self) -> bool:
@@ -925,6 +940,34 @@ def test_locomotion_restart_that_drops_the_object_finds_it_again() -> None:
     assert [f.reason for f in rec.failures] == ["locomotion restarted"]
     assert _calls(house, "grasp") == ["tomato_soup_can"] * 2
     assert "stand_up" in [w for w, _ in _after_kill(house)]
+
+
+@pytest.mark.parametrize(("request_name", "nth"), [("approach", 2), ("navigate_to", 12)])
+def test_a_trip_gets_the_robot_up_and_the_task_goes_on(request_name: str, nth: int) -> None:
+    # paper-3: a walk tripped locomotion's safety (roll -34 degrees); every request after
+    # it failed at once, and the task ran through its objects and zones to "done"
+    house = FakeHouse(_things())
+    house.trip_at = {request_name: nth}
+    report = _task(house).run()
+    assert house.counts[f"trip:{request_name}"] >= nth  # it did trip
+    assert report.trips == 1 and report.outcome == "done"
+    assert ("stand_up", None) in house.calls
+    _all_home(house, report)
+
+
+def test_a_robot_that_keeps_tripping_ends_the_trial_with_the_reason() -> None:
+    house = FakeHouse(_things())
+    house.trip_at = {"navigate_to": 1}
+
+    def trip_again(stand_up=house.stand_up) -> Outcome:
+        out = stand_up()
+        house.tripped, house.standing = True, False  # down again at once
+        return out
+
+    house.stand_up = trip_again  # type: ignore[method-assign]
+    report = _task(house).run()
+    assert report.outcome == "failed" and "tripped" in report.reason
+    assert report.trips == CFG.task.max_trips + 1
 
 
 def test_locomotion_restart_during_an_approach_looks_again_from_standing() -> None:
