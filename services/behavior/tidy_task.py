@@ -215,6 +215,8 @@ class TaskConfig:
     # the track is taken for a false detection and given up at once (each try costs an
     # approach, and a phantom used to eat all max_attempts of them).
     max_unseen: int = 2
+    # m: after the first such probe, the object is looked at again from this far back
+    relook_standoff: float = 0.8
     zone_order: Literal["file", "nearest"] = "nearest"  # zones in file order or nearest next
     zones: tuple[str, ...] = ()  # the zones to search; empty: every search zone of the file
     walk_posture: str = "stow"  # the arm while walking without an object
@@ -1351,6 +1353,7 @@ class TidyTask:
                 if rec.unseen >= self.cfg.max_unseen:
                     why = f"estimate: {out.reason} ({rec.unseen} times from close by: a false detection?)"
                     return self._give_up_now(Step.PROBE, why)
+                self._look_from_back(rec)
             # not in view, too far: another viewpoint (approach again from where it is now)
             return self._give_up_or(Step.PROBE, f"estimate: {out.reason}", Step.APPROACH)
         self.plan = plan
@@ -1364,6 +1367,21 @@ class TidyTask:
             if not out.ok and UNSETTLED not in out.reason:
                 return self._give_up_or(Step.PROBE, f"step in: {out.reason}", Step.APPROACH)
         return Step.GRASP
+
+    def _look_from_back(self, rec: ObjectRecord) -> None:
+        """After a probe that detected nothing: step back to ``relook_standoff`` and look
+        in the search posture, so the memory places the object afresh before the next
+        approach. The probing view is narrow; a track placed 10-20 cm off from afar puts
+        a real object out of it (paper-3: a soup can and a brick, each given up as a
+        false detection after two such probes)."""
+        kind = "search_floor" if self._table_of(rec) is None else "search_table"
+        sc = self.search[kind]
+        self._posture(sc.posture)
+        back = max(self.cfg.relook_standoff, sc.view_near + 0.1)
+        out = self.robot.approach((rec.position[0], rec.position[1]), back, self._facing(rec))
+        if out.ok or UNSETTLED in out.reason:
+            self.robot.wait(sc.dwell)
+            self._refresh_target()
 
     def _grasp(self) -> Step:
         rec, probe, plan = self.target, self.probe, self.plan
