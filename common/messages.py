@@ -35,6 +35,7 @@ from quadmanip.common.schema import (
 )
 
 __all__ = [
+    "GRASP_MAX_TILT",
     "ActionCancel",
     "ActionFeedback",
     "ActionGoal",
@@ -504,6 +505,11 @@ class PostureGoal(Message):
     stamp: float
     posture: str
     duration: float = 0.0  # 0: let the planner choose from velocity limits
+
+
+#: Largest ``GraspGoal.tilt`` (rad) manipulation executes: the wrist's forward lean on a
+#: flared wall; perception clamps a steeper wall's lean to it.
+GRASP_MAX_TILT = 0.8
 
 
 @message("qm.GraspGoal", (1, 3))

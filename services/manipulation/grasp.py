@@ -33,6 +33,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from quadmanip.common.messages import GRASP_MAX_TILT
 from quadmanip.services.manipulation.arm_kinematics import (
     ArmGeometry,
     ArmTarget,
@@ -145,8 +146,10 @@ def plan_grasp(
         )
     if approach not in ("vertical", "horizontal"):
         raise GraspRejected("invalid_goal", f"approach {approach!r} (auto is resolved upstream)")
-    if not math.isfinite(tilt) or abs(tilt) > 0.8 or (tilt and approach != "vertical"):
-        raise GraspRejected("invalid_goal", f"tilt {tilt} (|tilt| <= 0.8, vertical grasps only)")
+    if not math.isfinite(tilt) or abs(tilt) > GRASP_MAX_TILT or (tilt and approach != "vertical"):
+        raise GraspRejected(
+            "invalid_goal", f"tilt {tilt} (|tilt| <= {GRASP_MAX_TILT}, vertical grasps only)"
+        )
     base_target, lateral = target_from_base_pose(geom, p, 0.0, 0.0)
     y_total = body.y_offset + lateral
     if abs(y_total) > g.max_lateral_shift + 1e-9:

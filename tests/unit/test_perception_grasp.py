@@ -15,6 +15,7 @@ import math
 
 import numpy as np
 import pytest
+from quadmanip.common.messages import GRASP_MAX_TILT
 from quadmanip.common.object_catalogue import load_catalogue
 from quadmanip.common.rotations import quat_from_axis_angle, quat_to_mat
 from quadmanip.services.perception.grasp_candidates import (
@@ -180,6 +181,18 @@ def test_table_under_the_object_wins_over_floor_seen_past_its_edge(cat):
     assert est.surface_height == pytest.approx(TABLE, abs=0.002)
     assert est.position[2] == pytest.approx(TABLE + 0.021, abs=0.002)
     assert est.hang == pytest.approx(0.021, abs=0.001)
+
+
+def test_a_wall_flared_beyond_the_wrists_tilt_is_pinched_at_the_largest_tilt(cat):
+    # a steeper bowl than the catalogue's (foot 4.2 cm across, not 8): lean about 0.84 rad
+    spec = cat.objects["bowl"]
+    v = spec.vessel
+    axis = np.array([0.40, -0.03])
+    pts, lean = bowl_cloud(axis, spec.size[1] / 2, 0.021, spec.size[2], v.wall, v.bottom, FLOOR)
+    assert GRASP_MAX_TILT < lean < 0.9
+    est = estimate_grasp(pts, CAM_ABOVE, "bowl", cat)
+    assert est.ok, est.reason
+    assert est.tilt == pytest.approx(GRASP_MAX_TILT)  # manipulation refuses anything more
 
 
 def test_standing_cylinder_is_grasped_across_its_diameter_3cm_below_the_top(cat):
