@@ -35,7 +35,6 @@ from quadmanip.common.schema import (
 )
 
 __all__ = [
-    "GRASP_MAX_TILT",
     "ActionCancel",
     "ActionFeedback",
     "ActionGoal",
@@ -507,17 +506,13 @@ class PostureGoal(Message):
     duration: float = 0.0  # 0: let the planner choose from velocity limits
 
 
-#: Largest ``GraspGoal.tilt`` (rad) manipulation executes: the wrist's forward lean on a
-#: flared wall; perception clamps a steeper wall's lean to it.
-GRASP_MAX_TILT = 0.8
-
-
 @message("qm.GraspGoal", (1, 3))
 class GraspGoal(Message):
     """Grasp an object at ``position`` (base frame) about ``yaw`` (rad, base frame);
     ``approach`` vertical (from above), horizontal, or auto; ``width`` is the object's
     width across the fingers (m); ``tilt`` (rad, vertical grasps) leans the tool forward so
-    the pads lie flat on a flared wall such as a bowl's (1.1: added, default 0); ``mass``
+    the pads lie flat on a flared wall such as a bowl's (1.1: added, default 0; at most
+    ``robot_description.GRASP_MAX_TILT``); ``mass``
     (kg) is the object's, from perception's catalogue, for the balance controller while it
     is held (1.2: added; 0 = unknown, manipulation assumes its configured default);
     ``hang`` (m) is how far the object reaches below the grasp point, from perception's

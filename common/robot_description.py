@@ -73,6 +73,10 @@ IMU_SENSORS: dict[str, str] = {
 }
 LIDAR_SITE = "lidar"
 GRIPPER_TCP_SITE = "gripper_tcp"
+#: Largest forward lean (rad) of the gripper in a vertical grasp (``GraspGoal.tilt``, so the
+#: pads lie flat on a flared wall): what manipulation executes; perception clamps a
+#: steeper wall's lean to it.
+GRASP_MAX_TILT = 0.8
 FRONT_CAMERA = "front_camera"
 GRIPPER_CAMERA = "gripper_camera"
 CAMERAS: tuple[str, ...] = (FRONT_CAMERA, GRIPPER_CAMERA)

@@ -33,7 +33,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from quadmanip.common.messages import GRASP_MAX_TILT
+from quadmanip.common.robot_description import GRASP_MAX_TILT
 from quadmanip.services.manipulation.arm_kinematics import (
     ArmGeometry,
     ArmTarget,

@@ -55,7 +55,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from quadmanip.common.messages import GRASP_MAX_TILT
+from quadmanip.common.robot_description import GRASP_MAX_TILT
 from quadmanip.services.perception.grasp_candidates import (
     CandidateConfig,
     Candidates,

@@ -15,8 +15,8 @@ import math
 
 import numpy as np
 import pytest
-from quadmanip.common.messages import GRASP_MAX_TILT
 from quadmanip.common.object_catalogue import load_catalogue
+from quadmanip.common.robot_description import GRASP_MAX_TILT
 from quadmanip.common.rotations import quat_from_axis_angle, quat_to_mat
 from quadmanip.services.perception.grasp_candidates import (
     CandidateConfig,
