@@ -33,13 +33,16 @@ import time
 from collections import deque
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
 from quadmanip.common import messages as m
 from quadmanip.common.bus import Bus
 from quadmanip.launcher import Launcher, free_endpoint, install_stop_signals, observer_bus
 from quadmanip.sim.scenarios import Scenario, get_scenario, save_scenario_file
+
+if TYPE_CHECKING:
+    from quadmanip.testbench.tidyup_film import TidyFilm
 
 #: The robot's own services: they would share the robot's computer (CPU is measured).
 ROBOT_SERVICES = ("locomotion", "manipulation", "perception", "navigation", "behavior")
@@ -205,8 +208,10 @@ class TidyRun:
         service_args: dict[str, list[str]] | None = None,
         stop: threading.Event | None = None,
         faults: list[tuple[str, float]] | None = None,
+        film: TidyFilm | None = None,
     ) -> None:
         self.scenario = scenario
+        self.film = film  # the robot at each stage, for a contact sheet (scoring tooling)
         # (service, sim seconds after the task's start): SIGKILL it then (fault trials)
         self.faults = sorted(faults or [], key=lambda f: f[1])
         for name, _ in self.faults:
@@ -339,6 +344,8 @@ class TidyRun:
                 true_xy.append((float(gt.stamp), float(x), float(y)))
 
         self.bus.subscribe("sim/gt/base", on_true)
+        if self.film is not None:
+            self.film.attach(self.bus)
         loc_errors: list[float] = []
         place_errors: list[float] = []
         cpu0, t_cpu0 = self._cpu(), time.monotonic()
@@ -355,6 +362,8 @@ class TidyRun:
             if faults and now_sim - sim0 >= faults[0][1]:
                 self._kill(faults.pop(0)[0], now_sim)
             self._count_falls(base.get())
+            if self.film is not None and p is not None:
+                self.film.on_step(now_sim - sim0, str(p.step))
             err = _localisation_error(list(true_xy), nav_pose.get())
             if err is not None:
                 loc_errors.append(err)
@@ -611,6 +620,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--realtime", action="store_true", help="sim in real time, not lockstep")
     ap.add_argument("--budget-s", type=float, help="the task's time budget (sim seconds)")
     ap.add_argument("--timeout-s", type=float, default=3600.0, help="wall-clock limit")
+    ap.add_argument(
+        "--film",
+        metavar="DIR",
+        help="a contact sheet of the run: the robot at each stage (DIR/sheet.png, frames)",
+    )
     add_run_arguments(ap)
     args = ap.parse_args(argv)
     try:
@@ -632,6 +646,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     stop = threading.Event()
     install_stop_signals(stop)
+    film = None
+    if args.film:
+        from quadmanip.testbench.tidyup_film import TidyFilm
+
+        film = TidyFilm(scenario, Path(args.film))
     with open(log_path, "w") as log:
         run = TidyRun(
             scenario,
@@ -644,9 +663,15 @@ def main(argv: list[str] | None = None) -> int:
             service_args=overrides,
             stop=stop,
             faults=faults,
+            film=film,
         )
         rep = run.run()
     out.write_text(json.dumps(rep.to_json(), indent=2) + "\n")
+    if film is not None:
+        sheet = film.save()
+        print(
+            f"contact sheet: {sheet} ({len(film.samples)} stages)" if sheet else "no stages filmed"
+        )
     print()
     print(rep.table())
     print(f"\nreport: {out}" + (f"\nrecording: {args.rerun}" if args.rerun else ""))

@@ -80,74 +80,18 @@ class StackFilm:
             low = self._low.get()
             if t < next_t or low is None:
                 continue
-            try:
-                objs = self._s.objs.get()
-                drw = self._s.drawers.get()
-                self.samples.append(
-                    _Sample(
-                        t=t,
-                        q=np.asarray(low.joints.q, dtype=float).copy(),
-                        gap=float(low.joints.gripper_gap),
-                        base=self._s.pose("base"),
-                        objects={}
-                        if objs is None
-                        else {
-                            n: (np.asarray(p), np.asarray(q))
-                            for n, p, q in zip(
-                                objs.names, objs.positions, objs.orientations, strict=True
-                            )
-                        },
-                        drawers={}
-                        if drw is None
-                        else {
-                            n: np.asarray(p) for n, p in zip(drw.names, drw.positions, strict=True)
-                        },
-                    )
-                )
-            except Exception:  # noqa: BLE001 - a missed frame must not end the trial
+            smp = sample_state(
+                t, low, self._s.base.get(), self._s.objs.get(), self._s.drawers.get()
+            )
+            if smp is None:
                 continue
+            self.samples.append(smp)
             next_t = t + self.period
 
     # ------------------------------------------------------------------ replay
     def render(self) -> list[np.ndarray]:
         """The sampled states drawn on a kinematic copy of the world."""
-        world = build_world(self.scenario)
-        model, data = world.model, world.initial_data()
-        jq = rd.joint_qpos_indices(model)
-        fingers = rd.joint_qpos_indices(model, rd.GRIPPER_JOINTS)
-        free = rd.free_joint_qpos_index(model)
-        obj_adr = {
-            n: int(model.jnt_qposadr[model.body(f"obj/{n}").jntadr[0]]) for n in world.object_names
-        }
-        slide = {k: int(model.joint(j).qposadr[0]) for k, j in world.drawer_joints.items()}
-        handle0: dict[str, np.ndarray] = {}
-        renderer = mujoco.Renderer(model, HEIGHT, WIDTH)
-        cam = mujoco.MjvCamera()
-        cam.type = mujoco.mjtCamera.mjCAMERA_FREE
-        cam.distance, cam.elevation = 1.6, -22.0
-        frames = []
-        for smp in self.samples:
-            data.qpos[jq] = smp.q
-            data.qpos[fingers] = 0.5 * smp.gap
-            bp, bq = smp.base
-            data.qpos[free : free + 3], data.qpos[free + 3 : free + 7] = bp, bq
-            for n, (p, q) in smp.objects.items():
-                if n in obj_adr:
-                    a = obj_adr[n]
-                    data.qpos[a : a + 3], data.qpos[a + 3 : a + 7] = p, q
-            for k, p in smp.drawers.items():
-                handle0.setdefault(k, p)
-                if k in slide:  # the drawer slides along world x (the cabinet faces west)
-                    data.qpos[slide[k]] = float(np.linalg.norm((p - handle0[k])[:2]))
-            mujoco.mj_forward(model, data)
-            r = quat_to_mat(bq)
-            yaw = float(np.degrees(np.arctan2(r[1, 0], r[0, 0])))
-            cam.lookat[:] = bp + r @ np.array([0.35, 0.0, -0.12])
-            cam.azimuth = yaw + self.azimuth
-            renderer.update_scene(data, cam)
-            frames.append(renderer.render().copy())
-        renderer.close()
-        return frames
+        return render_states(self.scenario, self.samples, self.azimuth)
 
     def save(self, docs_sheet: Path | None = None) -> int:
         """Render and write the frames, a contact sheet and optionally a docs sheet."""
@@ -164,6 +108,74 @@ class StackFilm:
                 docs_sheet.parent.mkdir(parents=True, exist_ok=True)
                 sheet.quantize(256).save(docs_sheet, optimize=True)
         return len(frames)
+
+
+def sample_state(t: float, low: Any, base: Any, objs: Any, drawers: Any) -> _Sample | None:
+    """One replayable state from the newest ``sim/lowstate``, ``sim/gt/base``,
+    ``sim/gt/objects`` and ``sim/gt/drawers`` messages (None before the first of the two
+    first ones)."""
+    if low is None or base is None or "base" not in base.names:
+        return None
+    i = list(base.names).index("base")
+    return _Sample(
+        t=t,
+        q=np.asarray(low.joints.q, dtype=float).copy(),
+        gap=float(low.joints.gripper_gap),
+        base=(np.asarray(base.positions[i]).copy(), np.asarray(base.orientations[i]).copy()),
+        objects={}
+        if objs is None
+        else {
+            n: (np.asarray(p), np.asarray(q))
+            for n, p, q in zip(objs.names, objs.positions, objs.orientations, strict=True)
+        },
+        drawers={}
+        if drawers is None
+        else {n: np.asarray(p) for n, p in zip(drawers.names, drawers.positions, strict=True)},
+    )
+
+
+def render_states(
+    scenario: Scenario | None, samples: list[_Sample], azimuth: float = 125.0
+) -> list[np.ndarray]:
+    """``samples`` drawn on a kinematic copy of ``scenario``'s world (``mj_forward`` only)
+    from a camera that follows the robot, ``azimuth`` degrees from its heading."""
+    world = build_world(scenario)
+    model, data = world.model, world.initial_data()
+    jq = rd.joint_qpos_indices(model)
+    fingers = rd.joint_qpos_indices(model, rd.GRIPPER_JOINTS)
+    free = rd.free_joint_qpos_index(model)
+    obj_adr = {
+        n: int(model.jnt_qposadr[model.body(f"obj/{n}").jntadr[0]]) for n in world.object_names
+    }
+    slide = {k: int(model.joint(j).qposadr[0]) for k, j in world.drawer_joints.items()}
+    handle0: dict[str, np.ndarray] = {}
+    renderer = mujoco.Renderer(model, HEIGHT, WIDTH)
+    cam = mujoco.MjvCamera()
+    cam.type = mujoco.mjtCamera.mjCAMERA_FREE
+    cam.distance, cam.elevation = 1.6, -22.0
+    frames = []
+    for smp in samples:
+        data.qpos[jq] = smp.q
+        data.qpos[fingers] = 0.5 * smp.gap
+        bp, bq = smp.base
+        data.qpos[free : free + 3], data.qpos[free + 3 : free + 7] = bp, bq
+        for n, (p, q) in smp.objects.items():
+            if n in obj_adr:
+                a = obj_adr[n]
+                data.qpos[a : a + 3], data.qpos[a + 3 : a + 7] = p, q
+        for k, p in smp.drawers.items():
+            handle0.setdefault(k, p)
+            if k in slide:  # the drawer slides along world x (the cabinet faces west)
+                data.qpos[slide[k]] = float(np.linalg.norm((p - handle0[k])[:2]))
+        mujoco.mj_forward(model, data)
+        r = quat_to_mat(bq)
+        yaw = float(np.degrees(np.arctan2(r[1, 0], r[0, 0])))
+        cam.lookat[:] = bp + r @ np.array([0.35, 0.0, -0.12])
+        cam.azimuth = yaw + azimuth
+        renderer.update_scene(data, cam)
+        frames.append(renderer.render().copy())
+    renderer.close()
+    return frames
 
 
 def main(argv: list[str] | None = None) -> int:
