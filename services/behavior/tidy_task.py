@@ -238,6 +238,9 @@ class TaskConfig:
     # around the object by these angles (rad, tried in turn).
     walk_standoffs: tuple[float, ...] = (0.8, 1.0, 0.6)
     walk_sides: tuple[float, ...] = (0.0, 0.6, -0.6, 1.2, -1.2, 1.8, -1.8, math.pi)
+    # m: an approach's straight line keeps other objects on the floor this far from the
+    # body's centre line (trunk and feet 0.19 m out, an object's half width, a margin)
+    step_clearance: float = 0.3
     # Walks to a place's stand end this far behind it (along its heading), and the
     # approach does the last part: a stand next to furniture lies inside the costmap's
     # inflation once the LiDAR sees that furniture, and navigation then refuses the goal.
@@ -442,6 +445,15 @@ def knowledge_problems(
     if unknown:
         problems.append(f"unknown classes {unknown}")
     return problems
+
+
+def _segment_dist(p: Sequence[float], a: Sequence[float], b: Sequence[float]) -> float:
+    """Distance in the plane from ``p`` to the segment ``a``-``b``."""
+    ax, ay, bx, by = a[0], a[1], b[0], b[1]
+    dx, dy = bx - ax, by - ay
+    n = dx * dx + dy * dy
+    t = 0.0 if n == 0.0 else max(0.0, min(1.0, ((p[0] - ax) * dx + (p[1] - ay) * dy) / n))
+    return math.hypot(p[0] - (ax + t * dx), p[1] - (ay + t * dy))
 
 
 def _dist(a: Sequence[float], b: Sequence[float]) -> float:
@@ -1273,13 +1285,41 @@ class TidyTask:
         tables = [p for p in self.places.values() if p.kind == "search_table"]
         return min(tables, key=lambda p: _dist(p.target, rec.position)) if tables else None
 
-    def _facing(self, rec: ObjectRecord) -> float | None:
+    def _facing(self, rec: ObjectRecord, standoff: float | None = None) -> float | None:
         """The heading to stand at for ``rec``: square to its table from the table's stand
         side (a stance turned toward an object near the table's end puts a corner of the
-        trunk against a leg, and the arm reaches across the edge at a slant); None on the
-        floor (facing the object, Algorithm 5)."""
+        trunk against a leg, and the arm reaches across the edge at a slant); on the floor,
+        facing the object (Algorithm 5: None) from the side the robot comes from, unless
+        another object on the floor lies in the way (:meth:`_clear_heading`)."""
         table = self._table_of(rec)
-        return None if table is None else table.stand[2]
+        if table is not None:
+            return table.stand[2]
+        return self._clear_heading(rec, self.cfg.probe_standoff if standoff is None else standoff)
+
+    def _clear_heading(self, rec: ObjectRecord, standoff: float) -> float | None:
+        """A heading whose straight approach (from here to ``standoff`` short of ``rec``)
+        passes no other object the memory holds on the floor by ``step_clearance``: the
+        LiDAR does not see them, and the approach's guard does not either (paper-3: an
+        approach among a mug, a Rubik's cube and a coffee can tripped the robot). None:
+        facing the object from here is clear (or nothing is)."""
+        here = self._pose()
+        others = [
+            o.position
+            for o in self.robot.objects()
+            if o.track_id != rec.track_id
+            and o.position[2] <= self.cfg.table_min_z
+            and o.confidence >= self.cfg.min_confidence
+        ]
+        if not others:
+            return None
+        x, y = rec.position[0], rec.position[1]
+        bearing = math.atan2(y - here[1], x - here[0])
+        for turn in self.cfg.walk_sides:
+            h = bearing + turn
+            stance = (x - standoff * math.cos(h), y - standoff * math.sin(h))
+            if all(_segment_dist(o, here, stance) > self.cfg.step_clearance for o in others):
+                return None if turn == 0.0 else h
+        return None
 
     def _walk_near(self, rec: ObjectRecord) -> Outcome:
         """Walk to within reach of an approach: a table object from the table's stand
@@ -1319,7 +1359,7 @@ class TidyTask:
                 return self._give_up_or(Step.APPROACH, f"walk: {out.reason}", Step.APPROACH)
             self._refresh_target()
         out = self.robot.approach(
-            (rec.position[0], rec.position[1]), probe.standoff, self._facing(rec)
+            (rec.position[0], rec.position[1]), probe.standoff, self._facing(rec, probe.standoff)
         )
         if not out.ok and FOOTPRINT in out.reason and not walked:
             # it stands against furniture (by a deposit place, a table's leg), and the
@@ -1330,7 +1370,9 @@ class TidyTask:
             if walk.ok:
                 self._refresh_target()
                 out = self.robot.approach(
-                    (rec.position[0], rec.position[1]), probe.standoff, self._facing(rec)
+                    (rec.position[0], rec.position[1]),
+                    probe.standoff,
+                    self._facing(rec, probe.standoff),
                 )
         if not out.ok and UNSETTLED not in out.reason:
             return self._give_up_or(Step.APPROACH, f"approach: {out.reason}", Step.APPROACH)
@@ -1378,7 +1420,7 @@ class TidyTask:
         sc = self.search[kind]
         self._posture(sc.posture)
         back = max(self.cfg.relook_standoff, sc.view_near + 0.1)
-        out = self.robot.approach((rec.position[0], rec.position[1]), back, self._facing(rec))
+        out = self.robot.approach((rec.position[0], rec.position[1]), back, self._facing(rec, back))
         if out.ok or UNSETTLED in out.reason:
             self.robot.wait(sc.dwell)
             self._refresh_target()
@@ -1429,7 +1471,7 @@ class TidyTask:
             if far - close < c.reach_resolution:
                 return Step.APPROACH  # no stance fits this grasp: probe afresh
             standoff = (close + far) / 2
-        moved = self.robot.approach(grasp_xy, standoff, self._facing(rec))
+        moved = self.robot.approach(grasp_xy, standoff, self._facing(rec, standoff))
         if not moved.ok:
             return Step.APPROACH
         # a side probe cannot see the object from the grasping stance: start over

@@ -826,6 +826,34 @@ def test_an_approach_stopped_by_furniture_at_once_walks_clear_and_approaches_aga
     assert math.dist(house.at[:2], can.position[:2]) == pytest.approx(CFG.task.probe_standoff)
 
 
+def test_an_approach_goes_round_another_object_on_the_floor_not_over_it() -> None:
+    # paper-3: an approach among a mug, a Rubik's cube and a coffee can tripped the robot;
+    # objects on the floor are below the LiDAR, so neither navigation nor the approach's
+    # guard sees them: the task steers the straight approach clear of those it knows
+    can = Thing("tomato_soup_can", 1, (2.5, 1.4, 0.05))
+    cube = Thing("rubiks_cube", 5, (2.25, 1.45, 0.03))  # just short of the can, on its line
+    house = FakeHouse([can, cube])
+    start = house.at = (1.0, 1.4, 0.0)
+    for t in (can, cube):
+        house.memory[t.track_id] = SeenObject(t.track_id, t.label, t.position)
+    task = _task(house)
+    task.target = ObjectRecord("tomato_soup_can", 1, "tray", can.position, t_found=0.0)
+    assert task._approach().value == "probe"
+    (target, standoff, heading), *_ = _calls(house, "approach")
+    assert heading is not None and abs(heading) > 0.3  # turned off the straight line
+    stance = (2.5 - standoff * math.cos(heading), 1.4 - standoff * math.sin(heading))
+    (ux, uy), (vx, vy) = np.subtract(stance, start[:2]), np.subtract(cube.position[:2], start[:2])
+    assert abs(ux * vy - uy * vx) / math.dist(stance, start[:2]) > CFG.task.step_clearance
+    # with nothing in the way, it faces the object from where it comes (Algorithm 5)
+    house = FakeHouse([can])
+    house.at = start
+    house.memory[1] = SeenObject(1, can.label, can.position)
+    task = _task(house)
+    task.target = ObjectRecord("tomato_soup_can", 1, "tray", can.position, t_found=0.0)
+    task._approach()
+    assert _calls(house, "approach")[0][2] is None
+
+
 def test_a_table_object_is_approached_square_to_its_table() -> None:
     # a stance turned toward an object near the table's end put a trunk corner against a
     # table leg; square to the table from its stand side, the object straight ahead
