@@ -329,6 +329,27 @@ class ParticleFilter:
         self._odom_applied = odom_pose
         self._pending = True
 
+    def rebase(self, odom_pose: Pose2) -> None:
+        """The odometry goes on in a new frame from ``odom_pose`` (its source restarted:
+        a new locomotion process counts from its own origin) while the robot stood where
+        the last odometry left it. The particles and the estimate stay where they are in
+        the map; increments count from ``odom_pose``. Without this the jump between the
+        two frames was taken for motion, and the robot was lost after every restart of
+        locomotion."""
+        new = (float(odom_pose[0]), float(odom_pose[1]), float(odom_pose[2]))
+        old = self._odom_latest
+        if old is not None and self._odom_applied is not None:
+            delta = compose(invert(self._odom_applied), old)
+            if any(abs(d) > 0.0 for d in delta):  # motion not yet given to the particles
+                self._sample_motion(delta)
+        if self._estimate is not None:
+            self._estimate.pose = _follow(self._estimate.pose, self._estimate.odom, old)
+            self._estimate.odom = new
+        if self._refined is not None:
+            r = self._refined
+            self._refined = _Refined(_follow(r.pose, r.odom, old), new, r.inliers, r.iterations)
+        self._odom_applied = self._odom_latest = new
+
     def _sample_motion(self, delta: Pose2) -> None:
         c = self.config
         n = len(self.particles)

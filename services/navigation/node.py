@@ -56,6 +56,7 @@ from quadmanip.services.navigation.grid import (
 )
 from quadmanip.services.navigation.map_io import load_map
 from quadmanip.services.navigation.navigator import Navigator
+from quadmanip.services.navigation.odom_watch import odometry_jumped
 from quadmanip.services.navigation.places import Place, load_places, places_path_for
 from quadmanip.services.navigation.scan import (
     ScanPoints,
@@ -191,6 +192,8 @@ class NavigationNode(Service):
         self.last_scan_stamp = -math.inf
         self.last_odom_stamp = -math.inf
         self.t_wall_odom = time.monotonic()
+        self.odom_prev: tuple[Pose2, float] | None = None  # the last odometry used, robot time
+        self.odom_rebases = 0
         self.t_wall_map = -math.inf
         self.t_wall_costmap = -math.inf
         self.published_map_version = -1
@@ -372,6 +375,11 @@ class NavigationNode(Service):
         assert od is not None and scan is not None
         odom = _pose_of(od)
         now = float(od.stamp)
+        if self.odom_prev is not None and odometry_jumped(
+            self.odom_prev[0], self.odom_prev[1], odom, now, self.config.odom_jump
+        ):
+            self._rebase_odometry(self.odom_prev[0], odom)
+        self.odom_prev = (odom, now)
         # robot time per control step (lockstep runs slower than the wall clock)
         self.dt = min(max(now - self.t_step, 1e-3), 0.2) if self.t_step > 0 else self.loop_period
         self.t_step = now
@@ -386,6 +394,25 @@ class NavigationNode(Service):
         pose = compose(self.map_to_odom, odom)
         self._publish_state(now, pose)
         self._step_job(now, pose, odom)
+
+    def _rebase_odometry(self, before: Pose2, after: Pose2) -> None:
+        """Odometry went on in a new frame (locomotion restarted): the robot is where it
+        was in the map; map->odom and the localiser follow the new frame, and an approach
+        (its goal in the old frame) ends."""
+        pose = compose(self.map_to_odom, before)
+        self.map_to_odom = compose(pose, invert(after))
+        if self.amcl is not None:
+            self.amcl.rebase(after)
+        self.odom_rebases += 1
+        self.log.warning(
+            "odometry jumped: a new odom frame (locomotion restarted?); the map pose is kept",
+            before=[round(v, 3) for v in before],
+            after=[round(v, 3) for v in after],
+            rebases=self.odom_rebases,
+        )
+        job = self.job
+        if job is not None and job.kind == "approach":
+            self._finish(job, "blocked", "blocked: odometry restarted in a new frame", after)
 
     def apply_hint(self, hint: m.InitialPose, odom: Pose2, now: float) -> str:
         """Handle a pose hint (``navigation/initial_pose``) at odometry ``odom``, robot time
