@@ -19,12 +19,17 @@ States (:class:`Step`) and what each does; every handler returns the next state:
     CHOOSE_TARGET -> DONE when every zone is searched and nothing graspable remains
 
 After an object is placed (or given up) the task takes the nearest object the memory
-already holds; the search goes on from the next viewpoint only when none is left.
+already holds in a zone it searches (or where a held object fell); the search goes on
+from the next viewpoint only when none is left. Tracks elsewhere (the deposit furniture,
+a room not searched) are taken for false detections.
 
 Retries are the ones a person would make: another grasp estimate after a failed grasp,
 facing the grasp point again when manipulation says it lies too far to the side, a step
-back (or closer) when it is too close (too far), another approach when the object was not
-in view, another stance for a place out of reach. Every failure is recorded with its
+back (or closer) when it is too close (too far), half way when it was both, a look from a
+step back and another approach when the object was not in view, a walk clear when the
+approach stops against furniture at once, another stance for a place out of reach. Floor
+objects are approached around the other objects the memory holds on the floor (the LiDAR
+does not see them), table objects square to the table. Every failure is recorded with its
 reason and counts against the object; after ``max_attempts`` the object is given up, so
 one stubborn object cannot eat the trial.
 
@@ -42,6 +47,10 @@ away). Then it waits until the service runs again and puts things back in order:
   again (the zone in progress from the first viewpoint that sees one, searched zones
   that hold one queued again, a look at any lying outside every zone);
 * manipulation: the arm's state is unknown: it moves to a known posture first.
+
+A trip of locomotion's safety (a request ends ``robot_down``) is handled like a restart
+of locomotion: get up, forget the memory, localise again; more than ``max_trips`` end the
+trial.
 
 Then the held object is checked (the gripper may have lost it: dropped, searched for) and
 the current object is taken up again from a sensible step: carried on when held,
