@@ -48,16 +48,16 @@ away). Then it waits until the service runs again and puts things back in order:
   that hold one queued again, a look at any lying outside every zone);
 * manipulation: the arm's state is unknown: it moves to a known posture first.
 
-A trip of locomotion's safety (a request ends ``robot_down``) is handled like a restart
-of locomotion: get up, forget the memory, localise again; more than ``max_trips`` end the
-trial.
-
 Then the held object is checked (the gripper may have lost it: dropped, searched for) and
 the current object is taken up again from a sensible step: carried on when held,
 approached again, or looked for again when the memory was lost. A restart is recorded as
 the object's failure with its reason ("locomotion restarted"), but only after
 ``restart_free`` of them does one count against ``max_attempts``: a restart is not the
 object's fault, and one must never make the task give an object up.
+
+A trip of locomotion's safety (a request ends ``robot_down``) is handled like a restart
+of locomotion: get up, forget the memory, localise again; more than ``max_trips`` end the
+trial.
 
 The task talks to the robot only through :class:`.robot_api.RobotApi` (the node
 implements it over the other services' actions and topics; the unit tests with a
