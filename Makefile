@@ -44,7 +44,7 @@ $(UNITREE_STAMP): $(STAMP)
 
 # A short tidy-up in the living room (two objects, drawers shut, ~8 min on 2 cores: 457 s wall from a fresh clone on 2026-12-02).
 DEMO_ARGS ?= --scenario short-20 --json demo-output/tidyup.json --rerun demo-output/tidyup.rrd \
-	--set behavior.drawers.places=[] --set 'behavior.task.zones=["living_floor","living_table"]'
+	--film demo-output/film --set behavior.drawers.places=[] --set 'behavior.task.zones=["living_floor","living_table"]'
 
 demo: $(STAMP)
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(VENV)/bin/quadmanip tidyup $(DEMO_ARGS)
