@@ -918,7 +918,7 @@ class TidyTask:
                 )
             if "locomotion" in todo:
                 # the actuators damped the legs when its commands stopped: it lies down
-                self._say("locomotion restarted: standing up")
+                self._say("standing up (locomotion restarted or tripped)")
                 out = r.stand_up()
                 if not out.ok:
                     if self._pending():  # gone again: the next round waits for it all
