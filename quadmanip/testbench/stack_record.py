@@ -135,10 +135,16 @@ def sample_state(t: float, low: Any, base: Any, objs: Any, drawers: Any) -> _Sam
 
 
 def render_states(
-    scenario: Scenario | None, samples: list[_Sample], azimuth: float = 125.0
+    scenario: Scenario | None,
+    samples: list[_Sample],
+    azimuth: float = 125.0,
+    unblocked: bool = False,
 ) -> list[np.ndarray]:
     """``samples`` drawn on a kinematic copy of ``scenario``'s world (``mj_forward`` only)
-    from a camera that follows the robot, ``azimuth`` degrees from its heading."""
+    from a camera that follows the robot, ``azimuth`` degrees from its heading. With
+    ``unblocked``, of ``azimuth`` and three more a quarter turn apart, the one that shows
+    most of the robot (a wall between the camera and the robot hides it; counted on a
+    segmentation render)."""
     world = build_world(scenario)
     model, data = world.model, world.initial_data()
     jq = rd.joint_qpos_indices(model)
@@ -150,6 +156,11 @@ def render_states(
     slide = {k: int(model.joint(j).qposadr[0]) for k, j in world.drawer_joints.items()}
     handle0: dict[str, np.ndarray] = {}
     renderer = mujoco.Renderer(model, HEIGHT, WIDTH)
+    seg = mujoco.Renderer(model, HEIGHT // 4, WIDTH // 4) if unblocked else None
+    if seg is not None:
+        seg.enable_segmentation_rendering()
+    root = model.body_rootid[model.body(rd.BASE_BODY).id]
+    robot_geoms = np.flatnonzero(model.body_rootid[model.geom_bodyid] == root)
     cam = mujoco.MjvCamera()
     cam.type = mujoco.mjtCamera.mjCAMERA_FREE
     cam.distance, cam.elevation = 1.6, -22.0
@@ -172,10 +183,32 @@ def render_states(
         yaw = float(np.degrees(np.arctan2(r[1, 0], r[0, 0])))
         cam.lookat[:] = bp + r @ np.array([0.35, 0.0, -0.12])
         cam.azimuth = yaw + azimuth
+        if seg is not None:
+            cam.azimuth = yaw + max(
+                (azimuth + k * 90.0 for k in range(4)),
+                key=lambda a: _robot_pixels(seg, data, cam, yaw + a, robot_geoms),
+            )
         renderer.update_scene(data, cam)
         frames.append(renderer.render().copy())
     renderer.close()
+    if seg is not None:
+        seg.close()
     return frames
+
+
+def _robot_pixels(
+    seg: mujoco.Renderer,
+    data: mujoco.MjData,
+    cam: mujoco.MjvCamera,
+    azimuth: float,
+    geoms: np.ndarray,
+) -> int:
+    """How many pixels of the robot's geoms a segmentation render from ``azimuth`` shows."""
+    cam.azimuth = azimuth
+    seg.update_scene(data, cam)
+    ids = seg.render()
+    on_geom = ids[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)
+    return int(np.isin(ids[..., 0][on_geom], geoms).sum())
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -83,7 +83,7 @@ class TidyFilm:
 
         if not self.samples:
             return None
-        frames = render_states(self.scenario, self.samples, self.azimuth)
+        frames = render_states(self.scenario, self.samples, self.azimuth, unblocked=True)
         self.out.mkdir(parents=True, exist_ok=True)
         for i, img in enumerate(frames):
             Image.fromarray(img).save(self.out / f"frame_{i:03d}.png")

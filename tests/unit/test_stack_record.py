@@ -39,3 +39,25 @@ def test_film_draws_each_sample_where_the_wire_said(tmp_path):
     assert film.save(tmp_path / "docs" / "sheet.png") == 2
     assert (tmp_path / "run" / "frame_001.png").exists()
     assert (tmp_path / "run" / "sheet.png").exists() and (tmp_path / "docs" / "sheet.png").exists()
+
+
+def test_a_camera_behind_a_wall_turns_to_where_the_robot_shows():
+    import math
+
+    from quadmanip.sim.scenarios import get_scenario
+    from quadmanip.testbench.stack_record import render_states
+
+    # by the west wall, facing so that the default bearing puts the camera behind the wall
+    yaw = math.radians(-125.0)
+    quat = np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
+    smp = _Sample(0.0, rd.home_joint_positions(), 0.05, (np.array([0.4, 2.0, 0.3]), quat), {}, {})
+    scn = get_scenario("short-20")
+    (blocked,) = render_states(scn, [smp], 125.0)
+    (seen,) = render_states(scn, [smp], 125.0, unblocked=True)
+
+    def trunk_pixels(img: np.ndarray) -> int:  # the trunk's orange
+        r, g, b = (img[..., k].astype(int) for k in range(3))
+        return int(((r > 180) & (g > 90) & (g < 190) & (b < 90)).sum())
+
+    assert trunk_pixels(blocked) == 0  # the wall hides it
+    assert trunk_pixels(seen) > 1000
