@@ -1309,7 +1309,8 @@ class TidyTask:
         """A heading whose straight approach (from here to ``standoff`` short of ``rec``)
         passes no other object the memory holds on the floor by ``step_clearance``: the
         LiDAR does not see them, and the approach's guard does not either (paper-3: the
-        robot tripped during an approach to a mug 0.27 m from a Rubik's cube). None:
+        robot tripped during an approach among a mug, a Rubik's cube and a coffee can).
+        None:
         facing the object from here is clear (or nothing is)."""
         here = self._pose()
         others = [
