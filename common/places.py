@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 import tomllib
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -59,6 +60,14 @@ class Place:
     target: tuple[float, float, float]
     size: tuple[float, float] = (0.0, 0.0)
     note: str = ""
+
+    def covers(self, p: Sequence[float], margin: float = 0.0) -> bool:
+        """Whether plan point ``p`` lies in the place's area (``size`` around the target's
+        x, y), grown by ``margin`` on every side."""
+        return (
+            abs(p[0] - self.target[0]) <= self.size[0] / 2 + margin
+            and abs(p[1] - self.target[1]) <= self.size[1] / 2 + margin
+        )
 
 
 def places_path_for(map_yaml: str | Path) -> Path:

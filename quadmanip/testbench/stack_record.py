@@ -113,9 +113,17 @@ class StackFilm:
 def sample_state(t: float, low: Any, base: Any, objs: Any, drawers: Any) -> _Sample | None:
     """One replayable state from the newest ``sim/lowstate``, ``sim/gt/base``,
     ``sim/gt/objects`` and ``sim/gt/drawers`` messages (None before the first of the two
-    first ones)."""
+    first ones, or for messages whose lists do not match: a missed frame, not an error that
+    ends the trial being filmed)."""
     if low is None or base is None or "base" not in base.names:
         return None
+    try:
+        return _sample(t, low, base, objs, drawers)
+    except (ValueError, IndexError):
+        return None
+
+
+def _sample(t: float, low: Any, base: Any, objs: Any, drawers: Any) -> _Sample:
     i = list(base.names).index("base")
     return _Sample(
         t=t,

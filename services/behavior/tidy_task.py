@@ -782,18 +782,9 @@ class TidyTask:
         deposit furniture, the cabinet, a room not searched) is taken for a false
         detection: in the short runs such tracks cost an approach and two probes each,
         eight of them 200 s in one run."""
-        margin = self.cfg.zone_margin
         names = [*self.search_zones, *(n for n in self.places if _synthetic(n))]
-        for name in names:
-            z = self.places.get(name)
-            if z is None:
-                continue
-            if (
-                abs(p[0] - z.target[0]) <= z.size[0] / 2 + margin
-                and abs(p[1] - z.target[1]) <= z.size[1] / 2 + margin
-            ):
-                return True
-        return False
+        zones = (self.places.get(name) for name in names)
+        return any(z is not None and z.covers(p, self.cfg.zone_margin) for z in zones)
 
     def _refresh_target(self) -> None:
         """The target's newest position from the memory (it may have been nudged)."""
@@ -1033,19 +1024,12 @@ class TidyTask:
         todo = [r for r in self.report.objects if not r.finished and r is not held]
         zones = [p for p in self.places.values() if p.kind in ("search_floor", "search_table")]
         margin = self.cfg.same_object_radius
-
-        def inside(z: Place, p: Point3) -> bool:
-            return (
-                abs(p[0] - z.target[0]) <= z.size[0] / 2 + margin
-                and abs(p[1] - z.target[1]) <= z.size[1] / 2 + margin
-            )
-
         spots = []
         for rec in todo:
             p = rec.position
-            if self.zone is not None and inside(self.zone, p):
+            if self.zone is not None and self.zone.covers(p, margin):
                 continue  # the zone in progress: below
-            around = [z for z in zones if inside(z, p)]
+            around = [z for z in zones if z.covers(p, margin)]
             for z in around:
                 if z.name in self.report.zones_searched:
                     with self._lock:
@@ -1597,11 +1581,7 @@ class TidyTask:
         n = max(int(_dist(a, b) / 0.1), 1)
         path = [(a[0] + (b[0] - a[0]) * i / n, a[1] + (b[1] - a[1]) * i / n) for i in range(n + 1)]
         for name in list(self.report.zones_searched):
-            z = self.places[name]
-            half = (z.size[0] / 2 + margin, z.size[1] / 2 + margin)
-            if any(
-                abs(x - z.target[0]) <= half[0] and abs(y - z.target[1]) <= half[1] for x, y in path
-            ):
+            if any(self.places[name].covers(xy, margin) for xy in path):
                 with self._lock:
                     self.report.zones_searched.remove(name)
                 self.zones_todo.append(name)
