@@ -77,6 +77,12 @@ GRIPPER_TCP_SITE = "gripper_tcp"
 #: pads lie flat on a flared wall): what manipulation executes; perception clamps a
 #: steeper wall's lean to it.
 GRASP_MAX_TILT = 0.8
+#: Deepest (m) the tool centre goes behind a box's near face in a horizontal grasp. The pads
+#: reach 2 cm either side of the tool centre, so at 3 cm they lie wholly on the box while
+#: the fingers pass as little of a long, turned box as they can: a grasp at the centre of a
+#: cracker box standing 16 cm deep slid the fingers 10 cm along it, and a turn of a few
+#: degrees made a finger push the box off the grasp (half of the table trials).
+HORIZONTAL_GRASP_DEPTH = 0.03
 FRONT_CAMERA = "front_camera"
 GRIPPER_CAMERA = "gripper_camera"
 CAMERAS: tuple[str, ...] = (FRONT_CAMERA, GRIPPER_CAMERA)

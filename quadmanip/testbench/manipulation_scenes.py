@@ -450,8 +450,9 @@ def grasp_from_poses(
     tool centre 3 cm below the object's top (the palm is 5 cm above the tool centre) but at
     least 2.1 cm above the supporting surface (the fingertips reach 2 cm beyond it). Vessels
     are grasped at the rim, fingers across the wall, on the side nearest the robot away from
-    a handle. Horizontal: at the object's centre (at most 5 cm above the surface), fingers
-    across the object's extent along the body y axis.
+    a handle. Horizontal: at the object's centre (at most 5 cm above the surface), a box's
+    at most ``HORIZONTAL_GRASP_DEPTH`` behind its near face, fingers across the object's
+    extent along the body y axis.
     """
     from quadmanip.sim.world.objects import object_parts
 
@@ -547,6 +548,8 @@ def grasp_from_poses(
     if spec.shape in ("cylinder", "sphere"):
         ext[1] = 0.5 * spec.size[0]
     pt = p.copy()
+    if spec.shape == "box":  # pads near the front face, not along a deep box's whole depth
+        pt -= base_rot[:, 0] * max(0.0, float(ext[0]) - rd.HORIZONTAL_GRASP_DEPTH)
     pt[2] = surface_z + min(0.05, max(0.02, 0.5 * spec.size[2]))
     return grasp_at(pt, "horizontal", 0.0, float(2 * ext[1]))
 

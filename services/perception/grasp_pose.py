@@ -40,7 +40,8 @@ candidates are rows of the object's front silhouette; the grasp row is
 between the contacts along y; the object's far side is not visible, so the grasp point's x
 is the front face plus half the object's depth along the view, from the class model (the
 catalogue's footprint: the side that matches the measured width faces the camera; its
-turn is the front face's measured angle). The front camera sits below a table top, so the
+turn is the front face's measured angle); a box's at most ``HORIZONTAL_GRASP_DEPTH``
+behind its front face (the fingers then pass little of a deep, turned box). The front camera sits below a table top, so the
 table surface itself is not seen: its height is the object's top less the class height
 when the top is in the image and consistent with the lowest visible point, else that
 lowest point (the table's edge hides a few mm).
@@ -55,7 +56,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from quadmanip.common.robot_description import GRASP_MAX_TILT
+from quadmanip.common.robot_description import GRASP_MAX_TILT, HORIZONTAL_GRASP_DEPTH
 from quadmanip.services.perception.grasp_candidates import (
     CandidateConfig,
     Candidates,
@@ -621,7 +622,10 @@ def _horizontal(
     # the object's depth along the view, from the class model and the face's turn
     band = (c[:, 1] >= v_lo - 2 * hm.cell) & (c[:, 1] < v_hi + 2 * hm.cell)
     depth = _depth_along_view(c[band], width, spec)
-    h_centre = front - 0.5 * depth
+    reach_in = 0.5 * depth
+    if spec is None or spec.shape not in ("cylinder", "sphere", "vessel"):  # type: ignore[attr-defined]
+        reach_in = min(reach_in, HORIZONTAL_GRASP_DEPTH)  # pads near a box's front face
+    h_centre = front - reach_in
     pos = hm.to_base(0.5 * (u_min + u_max), surface + target, h_centre)
     return GraspEstimate(
         ok=True,

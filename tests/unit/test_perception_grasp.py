@@ -16,7 +16,7 @@ import math
 import numpy as np
 import pytest
 from quadmanip.common.object_catalogue import load_catalogue
-from quadmanip.common.robot_description import GRASP_MAX_TILT
+from quadmanip.common.robot_description import GRASP_MAX_TILT, HORIZONTAL_GRASP_DEPTH
 from quadmanip.common.rotations import quat_from_axis_angle, quat_to_mat
 from quadmanip.services.perception.grasp_candidates import (
     CandidateConfig,
@@ -240,7 +240,7 @@ def test_long_thin_rod_is_grasped_across_its_middle(cat):
     assert est.width == pytest.approx(0.018, abs=0.003)
 
 
-def test_horizontal_probe_centres_the_grasp_with_the_class_depth(cat):
+def test_horizontal_probe_grasps_a_box_behind_its_front_face(cat):
     # the sugar box (90 x 45 x 175 mm) on a table, its 45 mm side facing the front
     # camera, which sits below the table top: only the front face is seen, from 5 mm up
     cx, cy = 0.95, 0.01
@@ -255,8 +255,11 @@ def test_horizontal_probe_centres_the_grasp_with_the_class_depth(cat):
     )
     assert est.ok, est.reason
     assert est.approach == "horizontal" and est.yaw == 0.0
+    # x: 3 cm behind the front face (the class depth, 9 cm, puts the centre 4.5 cm behind);
     # z: half the height, clipped to 5 cm above the table (its height = top - class height)
-    np.testing.assert_allclose(est.position, [cx, cy, TABLE + 0.05], atol=0.003)
+    assert sx / 2 > HORIZONTAL_GRASP_DEPTH == pytest.approx(0.03)
+    x = cx - sx / 2 + HORIZONTAL_GRASP_DEPTH
+    np.testing.assert_allclose(est.position, [x, cy, TABLE + 0.05], atol=0.003)
     assert est.width == pytest.approx(sy, abs=0.003)
     assert est.hang == pytest.approx(0.05, abs=0.001)
 
