@@ -171,6 +171,7 @@ class StackRun:
         self.judge = bus.latest("sim/gt/judge")
         self.clock = bus.latest("sim/clock")
         self.payload = bus.latest("locomotion/payload")
+        self.health = bus.latest("locomotion/health")
         self.vel = bus.publisher("locomotion/cmd_vel")
         self.actions = {
             n: bus.action_client(a.service, n)
@@ -180,12 +181,17 @@ class StackRun:
         }
 
     def _check_alive(self) -> None:
+        """A child that died, or locomotion's safety trip, ends the trial with its reason
+        (a tripped robot ignores velocity commands: the walk would only time out)."""
         assert self.launcher is not None
         dead = self.launcher.dead_child()
         if dead is not None:
             raise StackError(
                 f"{dead.name} exited (code {dead.proc.returncode if dead.proc else '?'})"
             )
+        h = self.health.get() if "locomotion" in self.services else None
+        if h is not None and h.state == "tripped":
+            raise StackError(f"locomotion tripped at {h.stamp:.2f} s: {h.reason}")
 
     def _wait_standing(self) -> None:
         assert self.bus is not None

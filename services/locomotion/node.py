@@ -98,7 +98,17 @@ class LocomotionNode(Service):
     # ------------------------------------------------------------------ commands
     def _reject(self, what: str, exc: Exception) -> None:
         self.rejected += 1
-        self.log.warning("command rejected", command=what, reason=str(exc), total=self.rejected)
+        # once a second per command: a client that keeps commanding a damped
+        # robot at 20 Hz buried the trip's own log line (the count says how many)
+        self.log.throttled(
+            f"reject-{what}",
+            1.0,
+            logging.WARNING,
+            "command rejected",
+            command=what,
+            reason=str(exc),
+            total=self.rejected,
+        )
 
     def _on_mode(self, msg: m.LocomotionMode) -> None:
         with self.lock:
