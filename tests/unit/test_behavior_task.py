@@ -170,6 +170,10 @@ class FakeHouse:
         # labels whose track lies off from afar: probes miss them until a look from the
         # search posture, from a step back, places them afresh
         self.placed_off: set[str] = set()
+        # labels whose surface seen from above is not level (Section 4.3): perception asks
+        # for a probe from the side with the front camera
+        self.not_level: set[str] = set()
+        self.probed_with: list[tuple[str, str]] = []  # (label, camera) of each estimate
 
     # -------------------------------------------------------------- restarts
     def _strike(self, name: str) -> Outage | None:
@@ -377,9 +381,12 @@ class FakeHouse:
     # -------------------------------------------------------------- hands
     def estimate_grasp(self, label, camera, track_id=-1):
         self.calls.append(("estimate_grasp", (label, track_id)))
+        self.probed_with.append((label, camera))
         if (refused := self._request("estimate_grasp")) is not None:
             return refused, None
         self.t += 1.0
+        if label in self.not_level and camera == "gripper_camera":
+            return Outcome(False, f"probe horizontally: {label} in gripper_camera"), None
         if track_id in self.phantoms:
             return Outcome(False, f"not in view: no {label} detected"), None
         t = self.things.get(track_id)
@@ -698,6 +705,22 @@ def test_a_false_detection_is_given_up_after_two_probes_that_see_nothing() -> No
     assert len(rec.failures) == 2 and "false detection" in rec.failures[-1].reason
     assert _calls(house, "estimate_grasp").count(("clamp", 90)) == 2
     for t in things:  # the real ones are tidied all the same
+        assert _record(report, t.label).placed
+
+
+def test_a_table_object_not_level_from_above_is_probed_from_the_side() -> None:
+    # Section 4.3: when the surface the camera above sees is not level, perception asks
+    # for a horizontal probe; asking from above again got the same answer four times
+    things = _things()
+    house = FakeHouse(things)
+    house.not_level.add("bowl")
+    report = _task(house).run()
+    rec = _record(report, "bowl")
+    assert rec.placed and rec.side_probe
+    cams = [c for label, c in house.probed_with if label == "bowl"]
+    assert cams[0] == "gripper_camera" and set(cams[1:]) == {"front_camera"}, cams
+    assert len(rec.failures) == 1 and "probe horizontally" in rec.failures[0].reason
+    for t in things:
         assert _record(report, t.label).placed
 
 
