@@ -97,6 +97,10 @@ class TidyReport:
     # release point is as good as this)
     localisation_error_m: dict[str, float] = field(default_factory=dict)
     place_localisation_error_m: dict[str, float] = field(default_factory=dict)
+    # locomotion's own deadline counters at the end (locomotion/health; totals since its
+    # last start): whether the controller kept up, above all in realtime mode, where the
+    # sim does not wait for it
+    controller: dict[str, float] = field(default_factory=dict)
 
     @property
     def placed(self) -> int:
@@ -157,6 +161,14 @@ class TidyReport:
                 + (", ".join(f"{k} {v}" for k, v in self.restarts.items() if v) or "none")
                 + f"; falls: {self.falls}"
             )
+        if self.controller:
+            c = self.controller
+            lines.append(
+                f"controller: {c['missed_ticks']:.0f} ticks missed, {c['late_answers']:.0f} "
+                f"answers late, {c['mpc_overruns']:.0f} MPC overruns, "
+                f"{c['degraded_episodes']:.0f} degraded episodes, "
+                f"{c['leg_timeouts']:.0f} leg timeouts"
+            )
         per = s["sim_time_per_placed_object_s"]
         lines.append(
             f"sim time {self.sim_time_s:.0f} s"
@@ -165,6 +177,22 @@ class TidyReport:
             f"robot services {self.robot_services_cpu_cores:.2f} CPU cores"
         )
         return "\n".join(lines)
+
+
+def _controller(h: m.LocomotionHealth | None) -> dict[str, float]:
+    """Locomotion's deadline counters from its last health message ({} without one)."""
+    if h is None:
+        return {}
+    return {
+        "missed_ticks": h.missed_ticks,
+        "late_answers": h.late_answers,
+        "mpc_overruns": h.mpc_overruns,
+        "answer_ms_p99_last_window": round(h.answer_ms_p99, 3),
+        "cmd_age_ticks_last_window": round(h.cmd_age_ticks, 2),
+        "leg_timeouts": h.leg_timeouts,
+        "degraded_episodes": h.degraded_episodes,
+        "trips": h.trips,
+    }
 
 
 def _yes(flag: bool) -> str:
@@ -326,6 +354,7 @@ class TidyRun:
         progress = self.bus.latest("behavior/progress")
         clock = self.bus.latest("sim/clock")
         judge = self.bus.latest("sim/gt/judge")
+        health = self.bus.latest("locomotion/health")
         deadline = w0 + START_TIMEOUT_S
         while progress.get() is None:
             self._check_alive()
@@ -400,6 +429,7 @@ class TidyRun:
         rep.robot_services_cpu_cores = round(
             sum(v for k, v in rep.cpu_cores.items() if k in ROBOT_SERVICES), 3
         )
+        rep.controller = _controller(health.get())
         rep.localisation_error_m = _spread(loc_errors)
         rep.place_localisation_error_m = _spread(place_errors)
         c = clock.get()

@@ -168,3 +168,30 @@ def test_localisation_error_compares_the_map_pose_with_the_truth_of_its_instant(
     s = _spread([0.01, 0.02, 0.03, 0.10])
     assert s["p50"] == pytest.approx(0.025) and s["max"] == 0.1 and s["samples"] == 4
     assert _spread([]) == {}
+
+
+def test_the_controllers_deadline_counters_are_reported():
+    # realtime mode: the sim does not wait for a late controller; the report says from
+    # locomotion's own counters whether it kept up
+    from quadmanip.tidyup import _controller
+
+    assert _controller(None) == {}
+    h = m.LocomotionHealth(
+        stamp=5.0,
+        state="degraded",
+        reason="late answers",
+        missed_ticks=3,
+        late_answers=41,
+        mpc_overruns=7,
+        answer_ms_p99=4.25,
+        leg_timeouts=0,
+        cmd_age_ticks=1.5,
+        degraded_episodes=2,
+    )
+    c = _controller(h)
+    assert (c["missed_ticks"], c["late_answers"], c["mpc_overruns"]) == (3, 41, 7)
+    assert c["degraded_episodes"] == 2 and c["answer_ms_p99_last_window"] == 4.25
+    rep = _scored(_judge(["spoon", "bowl"], ["spoon"]), _progress())
+    rep.controller = c
+    assert "3 ticks missed, 41 answers late, 7 MPC overruns, 2 degraded episodes" in rep.table()
+    assert rep.to_json()["controller"]["late_answers"] == 41
