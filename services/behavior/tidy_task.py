@@ -228,6 +228,9 @@ class TaskConfig:
     max_unseen: int = 2
     # m: after the first such probe, the object is looked at again from this far back
     relook_standoff: float = 0.8
+    # m: an estimate of the class in view (the target's track forgotten) farther than this
+    # from the target is of another object
+    estimate_gate: float = 0.3
     zone_order: Literal["file", "nearest"] = "nearest"  # zones in file order or nearest next
     zones: tuple[str, ...] = ()  # the zones to search; empty: every search zone of the file
     walk_posture: str = "stow"  # the arm while walking without an object
@@ -1384,6 +1387,14 @@ class TidyTask:
         if not out.ok and "unknown track" in out.reason:
             # perception forgot the track (not seen for a while): the class in view will do
             out, plan = self.robot.estimate_grasp(rec.label, probe.camera, -1)
+            off = _dist(plan.position_map, rec.position) if out.ok and plan is not None else 0.0
+            if off > self.cfg.estimate_gate:
+                # the class in view is another object (paper-4: a grasp planned 0.49 m to
+                # the side, refused, and the approach and probe again)
+                out, plan = (
+                    Outcome(False, f"{NOT_DETECTED}{rec.label} here ({off:.2f} m off)"),
+                    None,
+                )
         if not out.ok or plan is None:
             if PROBE_SIDEWAYS in out.reason and not probe.horizontal and self._table_of(rec):
                 # 4.3: what the camera above sees of it is not level; the paper then probes

@@ -177,6 +177,9 @@ class FakeHouse:
         # phantoms (track ids) detected only from beyond 1 m: a look from nearer, with them
         # in view, makes the memory drop them (it removes what should be seen and is not)
         self.far_only: set[int] = set()
+        # track ids perception has forgotten: an estimate naming one is refused ("unknown
+        # track"); one naming none takes the nearest object of the class in view
+        self.forgotten: set[int] = set()
 
     # -------------------------------------------------------------- restarts
     def _strike(self, name: str) -> Outage | None:
@@ -393,9 +396,14 @@ class FakeHouse:
         self.t += 1.0
         if label in self.not_level and camera == "gripper_camera":
             return Outcome(False, f"probe horizontally: {label} in gripper_camera"), None
+        if track_id in self.forgotten:
+            return Outcome(False, f"unknown track {track_id}", rejected=True), None
         if track_id in self.phantoms:
             return Outcome(False, f"not in view: no {label} detected"), None
         t = self.things.get(track_id)
+        if track_id == -1:
+            same = [x for x in self.things.values() if x.label == label and x is not self.held]
+            t = min(same, key=lambda x: _bearing(self.at, x.position)[0], default=None)
         if t is None or t is self.held:
             return Outcome(False, "not in view"), None
         if t.label in self.placed_off:
@@ -758,6 +766,23 @@ def test_a_real_object_the_look_places_afresh_is_not_taken_for_a_false_detection
     report = task.run()
     rec = _record(report, things[0].label)
     assert rec.placed and rec.unseen == 1
+
+
+def test_an_estimate_of_another_object_of_the_class_is_not_taken_for_the_target() -> None:
+    # perception forgot the target's track; the estimate of the class in view found
+    # another object 0.5 m away (paper-4: a grasp planned 0.49 m to the side, refused)
+    things = _things()[:1]
+    real = Thing("clamp", 91, (things[0].position[0] - 0.5, things[0].position[1], 0.05))
+    ghost = Thing("clamp", 90, (things[0].position[0], things[0].position[1], 0.05))
+    house = FakeHouse([*things, real], phantoms=[ghost])
+    house.forgotten.add(90)
+    house.memory[90] = SeenObject(90, "clamp", ghost.position)
+    report = _task(house).run()
+    recs = {r.track_id: r for r in report.objects if r.label == "clamp"}
+    assert recs[90].given_up and not recs[90].grasped
+    assert any("0.50 m off" in f.reason for f in recs[90].failures), recs[90].failures
+    assert recs[91].placed  # the other one, on its own record
+    assert _record(report, things[0].label).placed
 
 
 def test_a_detection_outside_the_searched_zones_is_not_acted_on() -> None:
