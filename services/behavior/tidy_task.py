@@ -142,6 +142,9 @@ REFUSED_GOAL = "rejected"
 #: Navigation's approach stopped at once: furniture within its guard around the trunk on
 #: the side it would move to (navigation/node.py).
 FOOTPRINT = "touches the footprint"
+#: Navigation's words for a walk goal that lies in (or too close to) an obstacle: refused at
+#: once against the map, or found so by the LiDAR on the way.
+BAD_GOAL = ("goal in an obstacle", "goal too close to an obstacle")
 #: A request ended because locomotion's safety tripped (roll or pitch beyond its limit):
 #: the legs are damped until ``recover`` (navigation and manipulation nodes).
 ROBOT_DOWN = "robot_down"
@@ -1328,8 +1331,9 @@ class TidyTask:
         if table is not None:
             return self._walk_to_stand(table)
         # from where the robot comes first; a goal in an obstacle (an object by the wall or
-        # a sofa) is refused at once, so the next side is tried (paper-2: a brick and a
-        # toy gun were given up on the same refused goal, tried again and again)
+        # a sofa) is refused at once, or the walk stopped when the LiDAR finds it so, and
+        # the next side is tried (paper-2: a brick and a toy gun were given up on the same
+        # refused goal, tried again and again; paper-4: the marker's walk, four times)
         bearing = math.atan2(rec.position[1] - here[1], rec.position[0] - here[0])
         out = Outcome(False, "no walk goal")
         for turn in self.cfg.walk_sides:
@@ -1341,7 +1345,8 @@ class TidyTask:
                     b,
                 )
                 out = self.robot.navigate_to(pose=goal)
-                if out.ok or not out.reason.startswith(REFUSED_GOAL):
+                bad = out.reason.startswith(REFUSED_GOAL) or any(b in out.reason for b in BAD_GOAL)
+                if out.ok or not bad:
                     return out
         return out
 

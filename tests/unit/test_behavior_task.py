@@ -154,6 +154,9 @@ class FakeHouse:
         # walk goals within 1.1 m of these objects that navigation refuses (in an
         # obstacle), this many times each
         self.refuse_near: dict[str, int] = {}
+        # how the refusal reads: navigation refuses a goal in the map's obstacles at once,
+        # and stops a walk whose goal the LiDAR finds too close to one on the way
+        self.refusal = "rejected: the goal is in an obstacle or too close to one"
         self.stuck_drawers: dict[str, int] = {}  # pulls of this drawer manipulation refuses
         self.arm_pull = 1.0  # m: longer pulls are refused as beyond the arm's reach
         self.unsettled = 0  # approaches that end near the goal but not within tolerance
@@ -338,7 +341,7 @@ class FakeHouse:
             seen = t.track_id in self.memory  # (a viewpoint walk before it was seen is fine)
             if pose is not None and n > 0 and seen and math.dist(pose[:2], t.position[:2]) < 1.1:
                 self.refuse_near[label] -= 1
-                return Outcome(False, "rejected: the goal is in an obstacle or too close to one")
+                return Outcome(False, self.refusal)
         self.t += self.walk_s
         self.by_furniture = False
         goal = PLACES[place].stand if place else pose
@@ -890,6 +893,22 @@ def test_a_walk_goal_in_an_obstacle_is_tried_from_other_sides() -> None:
     assert goals[0][2] == pytest.approx(0.0) and goals[3][2] == pytest.approx(0.6)
     for g in goals:
         assert _bearing(g, screwdriver.position)[1] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_a_walk_stopped_because_its_goal_is_too_close_to_an_obstacle_tries_other_sides() -> None:
+    # the LiDAR finds the goal too close to an obstacle only on the way (paper-4: the
+    # marker's walk blocked so four times, the same goal each time)
+    house = FakeHouse(_things())
+    house.at = (2.0, 2.3, 0.0)
+    task = _task(house)
+    screwdriver = house.things[2]
+    house.memory[2] = SeenObject(2, "screwdriver", screwdriver.position)
+    house.refuse_near = {"screwdriver": 2}
+    house.refusal = "blocked: goal too close to an obstacle"
+    rec = ObjectRecord("screwdriver", 2, "drawer", screwdriver.position, t_found=0.0)
+    assert task._walk_near(rec).ok
+    goals = [p for what, p in house.calls if what == "navigate_to"]
+    assert len(goals) == 3 and len({g[:2] for g in goals}) == 3
 
 
 def test_an_approach_stopped_by_furniture_at_once_walks_clear_and_approaches_again() -> None:
