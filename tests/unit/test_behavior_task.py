@@ -163,6 +163,9 @@ class FakeHouse:
         # the robot stands against furniture: an approach from here stops at once on
         # navigation's footprint guard, until a walk (navigate_to) leads it clear
         self.by_furniture = False
+        # furniture (x, y) on the floor: an approach whose stance comes within 0.35 m of
+        # one stops at once on the footprint guard, from wherever it starts
+        self.furniture: list[tuple[float, float]] = []
         # label -> (near, far): its grasp is refused from a stance nearer than ``near`` (the
         # arm against the trunk) or farther than ``far`` (out of reach), m to the object
         self.reach_bands: dict[str, tuple[float, float]] = {}
@@ -367,13 +370,17 @@ class FakeHouse:
         if self.by_furniture:
             self.t += 0.2
             return Outcome(False, "blocked: an obstacle touches the footprint")
-        self.t += self.walk_s / 2
         h = (
             heading
             if heading is not None
             else math.atan2(target[1] - self.at[1], target[0] - self.at[0])
         )
-        self.at = (target[0] - standoff * math.cos(h), target[1] - standoff * math.sin(h), h)
+        stance = (target[0] - standoff * math.cos(h), target[1] - standoff * math.sin(h))
+        if any(math.dist(stance, f) < 0.35 for f in self.furniture):
+            self.t += 0.2
+            return Outcome(False, "blocked: an obstacle touches the footprint")
+        self.t += self.walk_s / 2
+        self.at = (*stance, h)
         self._look()
         if self.unsettled > 0:
             self.unsettled -= 1
@@ -909,6 +916,21 @@ def test_a_walk_stopped_because_its_goal_is_too_close_to_an_obstacle_tries_other
     assert task._walk_near(rec).ok
     goals = [p for what, p in house.calls if what == "navigate_to"]
     assert len(goals) == 3 and len({g[:2] for g in goals}) == 3
+
+
+def test_an_approach_blocked_by_furniture_after_the_walk_comes_from_another_side() -> None:
+    # paper-4: the tennis ball 0.46 m from the bookshelf; every approach from the side
+    # the robot walked to stopped on the footprint guard, four times, then given up
+    things = _things()
+    house = FakeHouse(things)
+    house.at = (2.0, 2.3, 0.0)  # west of the screwdriver: walked to first
+    house.furniture = [(5.55, 2.5)]  # beside the stance facing it from the west
+    report = _task(house).run()
+    rec = _record(report, "screwdriver")
+    assert rec.placed
+    # the walk from the side it comes from (the stop may be the robot's own stance against
+    # furniture) is stopped once more; the next walk comes from another side
+    assert len([f for f in rec.failures if "footprint" in f.reason]) == 1, rec.failures
 
 
 def test_an_approach_stopped_by_furniture_at_once_walks_clear_and_approaches_again() -> None:
