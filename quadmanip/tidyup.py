@@ -101,6 +101,9 @@ class TidyReport:
     # last start): whether the controller kept up, above all in realtime mode, where the
     # sim does not wait for it
     controller: dict[str, float] = field(default_factory=dict)
+    # the behavior's records that belong to no scenario object: what the robot went after
+    # that was not there (false detections), with where first seen and why given up
+    unmatched: list[dict[str, Any]] = field(default_factory=list)
 
     @property
     def placed(self) -> int:
@@ -161,6 +164,12 @@ class TidyReport:
                 + (", ".join(f"{k} {v}" for k, v in self.restarts.items() if v) or "none")
                 + f"; falls: {self.falls}"
             )
+        if self.unmatched:
+            seen = ", ".join(
+                f"{u['label']} at ({u['first_seen_xy'][0]:.1f}, {u['first_seen_xy'][1]:.1f})"
+                for u in self.unmatched
+            )
+            lines.append(f"went after what is not in the scene ({len(self.unmatched)}): {seen}")
         if self.controller:
             c = self.controller
             lines.append(
@@ -487,10 +496,12 @@ class TidyRun:
             rep.judge_valid = bool(judge.valid)
             rep.leg_timeouts = int(judge.leg_timeouts)
         rep.drawers_opened = list(getattr(progress, "drawers_opened", []) or [])
+        used: set[int] = set()
         for name in self.scenario.object_names:
             o = ObjectReport(name, cat.objects[name].category, cat.place_of(name))
             start = next(p for p in self.scenario.objects if p.name == name).position
             rec = _match(name, (start[0], start[1]), records)
+            used.update(rec["ids"])
             o.found, o.grasped = rec["found"], rec["grasped"]
             o.placed_by_robot, o.time_s = rec["placed"], rec["time_s"]
             o.failures, o.seen_as = rec["failures"], rec["labels"]
@@ -499,6 +510,17 @@ class TidyRun:
                 o.where, o.judge_note = judge.locations[i], judge.notes[i]
                 o.placed = name in list(judge.in_place) and bool(judge.valid)
             rep.objects.append(o)
+        rep.unmatched = [
+            {
+                "label": r["label"],
+                "first_seen_xy": [round(v, 2) for v in r["xy"]],
+                "grasped": r["grasped"],
+                "placed": r["placed"],
+                "failures": r["failures"],
+            }
+            for i, r in enumerate(records)
+            if i not in used
+        ]
 
 
 #: A behavior record belongs to a scenario object of another class (the detector took a
@@ -542,6 +564,7 @@ def _match(name: str, start_xy: tuple[float, float], records: list[dict[str, Any
         mine = [r for r in records if math.dist(r["xy"], start_xy) < MATCH_RADIUS_M]
     times = [r["time_s"] for r in mine if r["time_s"] is not None]
     return {
+        "ids": [i for i, r in enumerate(records) if any(r is x for x in mine)],
         "found": bool(mine),
         "grasped": any(r["grasped"] for r in mine),
         "placed": any(r["placed"] for r in mine),

@@ -195,3 +195,24 @@ def test_the_controllers_deadline_counters_are_reported():
     rep.controller = c
     assert "3 ticks missed, 41 answers late, 7 MPC overruns, 2 degraded episodes" in rep.table()
     assert rep.to_json()["controller"]["late_answers"] == 41
+
+
+def test_records_of_no_scenario_object_are_reported_as_what_was_not_there():
+    # a "sugar box" chased in the kitchen, where the scene has none (paper-4, paper-5)
+    prog = _progress(
+        objects=["spoon", "bowl", "sugar_box"],
+        object_grasped=[True, True, False],
+        object_placed=[True, False, False],
+        object_time_s=[40.0, float("nan"), float("nan")],
+        object_failures=["", "grasp: lateral_out_of_range", "probe: not in view\nprobe: again"],
+        object_positions=np.array([[2.28, 0.78, 0.0], [2.89, 3.53, 0.4], [8.3, 3.1, 0.0]]),
+    )
+    rep = _scored(_judge(["spoon", "bowl"], ["spoon"]), prog)
+    assert [u["label"] for u in rep.unmatched] == ["sugar_box"]
+    assert rep.unmatched[0]["first_seen_xy"] == [8.3, 3.1]
+    assert rep.unmatched[0]["failures"] == ["probe: not in view", "probe: again"]
+    assert "went after what is not in the scene (1): sugar_box at (8.3, 3.1)" in rep.table()
+    assert rep.to_json()["unmatched"][0]["label"] == "sugar_box"
+    # the objects' own records are not among them
+    rep = _scored(_judge(["spoon", "bowl"], ["spoon"]), _progress())
+    assert rep.unmatched == []
