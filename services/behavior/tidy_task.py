@@ -258,6 +258,9 @@ class TaskConfig:
     # m: an approach's straight line keeps other objects on the floor this far from the
     # body's centre line (trunk and feet 0.19 m out, an object's half width, a margin)
     step_clearance: float = 0.3
+    # m: (half length, half width) of where the feet step about a stance: hips at +-0.17 m
+    # and +-0.08 m (the robot description), a step and an object's half size beyond
+    feet_box: tuple[float, float] = (0.35, 0.28)
     # Walks to a place's stand end this far behind it (along its heading), and the
     # approach does the last part: a stand next to furniture lies inside the costmap's
     # inflation once the LiDAR sees that furniture, and navigation then refuses the goal.
@@ -462,6 +465,14 @@ def knowledge_problems(
     if unknown:
         problems.append(f"unknown classes {unknown}")
     return problems
+
+
+def _in_box(p: Point3, pose: Pose2, half: tuple[float, float]) -> bool:
+    """Whether ``p`` lies within ``half`` (half length, half width) of ``pose``'s origin,
+    along and across its heading."""
+    dx, dy = p[0] - pose[0], p[1] - pose[1]
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    return abs(dx * c + dy * s) <= half[0] and abs(dy * c - dx * s) <= half[1]
 
 
 def _segment_dist(p: Sequence[float], a: Sequence[float], b: Sequence[float]) -> float:
@@ -1299,19 +1310,15 @@ class TidyTask:
 
     def _clear_heading(self, rec: ObjectRecord, standoff: float) -> float | None:
         """A heading whose straight approach (from here to ``standoff`` short of ``rec``)
-        passes no other object the memory holds on the floor by ``step_clearance``: the
-        LiDAR does not see them, and the approach's guard does not either (paper-3: the
-        robot tripped during an approach among a mug, a Rubik's cube and a coffee can).
+        passes no other object the memory holds on the floor by ``step_clearance``, and
+        whose stance has none within ``feet_box`` of it: the LiDAR does not see them, and
+        the approach's guard does not either (paper-3: the robot tripped during an
+        approach among a mug, a Rubik's cube and a coffee can; paper-5 fell with a foot on
+        a Rubik's cube beside its stance).
         None:
         facing the object from here is clear (or nothing is)."""
         here = self._pose()
-        others = [
-            o.position
-            for o in self.robot.objects()
-            if o.track_id != rec.track_id
-            and o.position[2] <= self.cfg.table_min_z
-            and o.confidence >= self.cfg.min_confidence
-        ]
+        others = self._floor_others(rec)
         if not others:
             return None
         x, y = rec.position[0], rec.position[1]
@@ -1319,9 +1326,26 @@ class TidyTask:
         for turn in self.cfg.walk_sides:
             h = bearing + turn
             stance = (x - standoff * math.cos(h), y - standoff * math.sin(h))
-            if all(_segment_dist(o, here, stance) > self.cfg.step_clearance for o in others):
+            # the stance's feet, not only its line: paper-5 fell with a hind foot on a
+            # Rubik's cube beside the stance (the line from the robot passed clear)
+            if all(
+                _segment_dist(o, here, stance) > self.cfg.step_clearance
+                and not _in_box(o, (*stance, h), self.cfg.feet_box)
+                for o in others
+            ):
                 return None if turn == 0.0 else h
         return None
+
+    def _floor_others(self, rec: ObjectRecord) -> list[Point3]:
+        """Where the memory holds objects on the floor other than ``rec``: below the
+        LiDAR's plane, so only the task steps around them."""
+        return [
+            o.position
+            for o in self.robot.objects()
+            if o.track_id != rec.track_id
+            and o.position[2] <= self.cfg.table_min_z
+            and o.confidence >= self.cfg.min_confidence
+        ]
 
     def _walk_near(self, rec: ObjectRecord, sides: Sequence[float] | None = None) -> Outcome:
         """Walk to within reach of an approach: a table object from the table's stand
@@ -1338,6 +1362,7 @@ class TidyTask:
         # refused goal, tried again and again; paper-4: the marker's walk, four times)
         bearing = math.atan2(rec.position[1] - here[1], rec.position[0] - here[0])
         out = Outcome(False, "no walk goal")
+        others = self._floor_others(rec)
         for turn in self.cfg.walk_sides if sides is None else sides:
             for back in self.cfg.walk_standoffs:
                 b = bearing + turn
@@ -1346,6 +1371,8 @@ class TidyTask:
                     rec.position[1] - back * math.sin(b),
                     b,
                 )
+                if any(_in_box(o, goal, self.cfg.feet_box) for o in others):
+                    continue  # it would stand on another object
                 out = self.robot.navigate_to(pose=goal)
                 bad = out.reason.startswith(REFUSED_GOAL) or any(b in out.reason for b in BAD_GOAL)
                 if out.ok or not bad:

@@ -968,6 +968,52 @@ def test_an_approach_stopped_by_furniture_at_once_walks_clear_and_approaches_aga
     assert math.dist(house.at[:2], can.position[:2]) == pytest.approx(CFG.task.probe_standoff)
 
 
+def test_an_approach_keeps_other_floor_objects_from_under_the_stances_feet() -> None:
+    # paper-5: the line from the robot to its stance passed clear of a Rubik's cube, but
+    # the cube lay beside the stance, under a hind foot, and the robot fell
+    can = Thing("tomato_soup_can", 1, (2.5, 1.4, 0.05))
+    start = (1.0, 1.4, 0.0)  # straight from the west: stance at x = 2.5 - standoff
+    stance_x = can.position[0] - CFG.task.probe_standoff
+    # by the left front foot, beyond the line's end: over step_clearance from the line
+    cube = Thing("rubiks_cube", 5, (stance_x + 0.25, 1.4 + 0.22, 0.03))
+    assert math.hypot(0.25, 0.22) > CFG.task.step_clearance
+    house = FakeHouse([can, cube])
+    house.at = start
+    for t in (can, cube):
+        house.memory[t.track_id] = SeenObject(t.track_id, t.label, t.position)
+    task = _task(house)
+    task.target = ObjectRecord("tomato_soup_can", 1, "tray", can.position, t_found=0.0)
+    assert task._approach().value == "probe"
+    (_, standoff, heading), *_ = _calls(house, "approach")
+    assert heading is not None and abs(heading) > 0.3  # turned: the cube is off its feet
+    stance = (2.5 - standoff * math.cos(heading), 1.4 - standoff * math.sin(heading), heading)
+    dx, dy = cube.position[0] - stance[0], cube.position[1] - stance[1]
+    along = dx * math.cos(heading) + dy * math.sin(heading)
+    across = dy * math.cos(heading) - dx * math.sin(heading)
+    half_len, half_wid = CFG.task.feet_box
+    assert abs(along) > half_len or abs(across) > half_wid
+
+
+def test_a_walk_goal_with_another_floor_object_under_its_feet_is_not_used() -> None:
+    house = FakeHouse(_things())
+    house.at = (2.0, 2.3, 0.0)  # 4 m west of the screwdriver: walked to first
+    task = _task(house)
+    screwdriver = house.things[2]
+    house.memory[2] = SeenObject(2, "screwdriver", screwdriver.position)
+    cube = (5.2, 2.35, 0.03)  # where the first goal (0.8 m short, from the west) stands
+    house.memory[5] = SeenObject(5, "rubiks_cube", cube)
+    rec = ObjectRecord("screwdriver", 2, "drawer", screwdriver.position, t_found=0.0)
+    assert task._walk_near(rec).ok
+    goals = [p for what, p in house.calls if what == "navigate_to"]
+    assert len(goals) == 1
+    g = goals[0]
+    dx, dy = cube[0] - g[0], cube[1] - g[1]
+    along = dx * math.cos(g[2]) + dy * math.sin(g[2])
+    across = dy * math.cos(g[2]) - dx * math.sin(g[2])
+    half_len, half_wid = CFG.task.feet_box
+    assert abs(along) > half_len or abs(across) > half_wid
+
+
 def test_an_approach_goes_round_another_object_on_the_floor_not_over_it() -> None:
     # paper-3: an approach among a mug, a Rubik's cube and a coffee can tripped the robot;
     # objects on the floor are below the LiDAR, so neither navigation nor the approach's
