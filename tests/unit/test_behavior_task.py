@@ -812,6 +812,20 @@ def test_a_floor_object_not_level_from_above_counts_as_not_seen() -> None:
         assert _record(report, t.label).placed
 
 
+def test_a_track_at_table_height_away_from_any_table_is_not_acted_on() -> None:
+    # short-20: a "cracker box" at table height 1.2 m from the living table was approached
+    # as a table object; the tennis ball 1 m from it was not seen again in that run
+    things = _things()
+    ghost = Thing("cracker_box", 90, (2.9, 1.9, 0.5))  # over the living room's floor
+    house = FakeHouse(things, phantoms=[ghost])
+    house.memory[90] = SeenObject(90, "cracker_box", ghost.position)
+    report = _task(house).run()
+    assert not [r for r in report.objects if r.label == "cracker_box"]
+    assert ("cracker_box", 90) not in _calls(house, "estimate_grasp")
+    for t in things:  # the bowl on the living table is a table object still
+        assert _record(report, t.label).placed
+
+
 def test_a_detection_outside_the_searched_zones_is_not_acted_on() -> None:
     # the kitchen's deposit furniture and cabinet gave false detections that each cost an
     # approach and two probes: objects lie in the zones the task searches
