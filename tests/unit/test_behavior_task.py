@@ -548,6 +548,15 @@ def _calls(house: FakeHouse, name: str) -> list[object]:
     return [arg for what, arg in house.calls if what == name]
 
 
+def _under_feet(p: tuple[float, ...], pose: tuple[float, float, float]) -> bool:
+    """Whether ``p`` lies in the feet's box (``feet_box``) about a stance ``pose``."""
+    dx, dy = p[0] - pose[0], p[1] - pose[1]
+    along = dx * math.cos(pose[2]) + dy * math.sin(pose[2])
+    across = dy * math.cos(pose[2]) - dx * math.sin(pose[2])
+    half_len, half_wid = CFG.task.feet_box
+    return abs(along) <= half_len and abs(across) <= half_wid
+
+
 def _home(label: str) -> str:
     """The places-file name where ``label`` belongs."""
     return CFG.deposits[CATALOGUE.place_of(label)].place
@@ -1001,11 +1010,7 @@ def test_an_approach_keeps_other_floor_objects_from_under_the_stances_feet() -> 
     (_, standoff, heading), *_ = _calls(house, "approach")
     assert heading is not None and abs(heading) > 0.3  # turned: the cube is off its feet
     stance = (2.5 - standoff * math.cos(heading), 1.4 - standoff * math.sin(heading), heading)
-    dx, dy = cube.position[0] - stance[0], cube.position[1] - stance[1]
-    along = dx * math.cos(heading) + dy * math.sin(heading)
-    across = dy * math.cos(heading) - dx * math.sin(heading)
-    half_len, half_wid = CFG.task.feet_box
-    assert abs(along) > half_len or abs(across) > half_wid
+    assert not _under_feet(cube.position, stance)
 
 
 def test_a_walk_goal_with_another_floor_object_under_its_feet_is_not_used() -> None:
@@ -1020,12 +1025,7 @@ def test_a_walk_goal_with_another_floor_object_under_its_feet_is_not_used() -> N
     assert task._walk_near(rec).ok
     goals = [p for what, p in house.calls if what == "navigate_to"]
     assert len(goals) == 1
-    g = goals[0]
-    dx, dy = cube[0] - g[0], cube[1] - g[1]
-    along = dx * math.cos(g[2]) + dy * math.sin(g[2])
-    across = dy * math.cos(g[2]) - dx * math.sin(g[2])
-    half_len, half_wid = CFG.task.feet_box
-    assert abs(along) > half_len or abs(across) > half_wid
+    assert not _under_feet(cube, goals[0])
 
 
 def test_an_approach_goes_round_another_object_on_the_floor_not_over_it() -> None:
