@@ -555,16 +555,17 @@ def _match(name: str, start_xy: tuple[float, float], records: list[dict[str, Any
     """Merge the records that are about scenario object ``name``: those of its class first
     seen near where it started, else any first seen right there (a misclassified object
     is still found)."""
-    mine = [
-        r
-        for r in records
+    ids = [
+        i
+        for i, r in enumerate(records)
         if r["label"] == name and math.dist(r["xy"], start_xy) < SAME_CLASS_RADIUS_M
     ]
-    if not mine:
-        mine = [r for r in records if math.dist(r["xy"], start_xy) < MATCH_RADIUS_M]
+    if not ids:
+        ids = [i for i, r in enumerate(records) if math.dist(r["xy"], start_xy) < MATCH_RADIUS_M]
+    mine = [records[i] for i in ids]
     times = [r["time_s"] for r in mine if r["time_s"] is not None]
     return {
-        "ids": [i for i, r in enumerate(records) if any(r is x for x in mine)],
+        "ids": ids,
         "found": bool(mine),
         "grasped": any(r["grasped"] for r in mine),
         "placed": any(r["placed"] for r in mine),

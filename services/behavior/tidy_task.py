@@ -1516,6 +1516,7 @@ class TidyTask:
             obj = min(near, key=lambda o: _dist(o.position, rec.position))
             with self._lock:
                 rec.track_id, rec.position = obj.track_id, obj.position
+                rec.track_epoch = self.track_epoch  # a track of the memory as it is now
         return True
 
     def _grasp(self) -> Step:
