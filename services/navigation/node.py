@@ -58,6 +58,7 @@ from quadmanip.services.navigation.map_io import load_map
 from quadmanip.services.navigation.navigator import Navigator
 from quadmanip.services.navigation.odom_watch import odometry_jumped
 from quadmanip.services.navigation.places import Place, load_places, places_path_for
+from quadmanip.services.navigation.pose_history import PoseHistory
 from quadmanip.services.navigation.scan import (
     ScanPoints,
     lidar_height_above_base,
@@ -181,6 +182,10 @@ class NavigationNode(Service):
         self.t_costmap_build = -math.inf
         self.scan_cache = self.latest("sim/scan")
         self.odom_cache = self.latest("locomotion/odometry")
+        # the odometry of each scan's own instant (see pose_history)
+        self.odom_history = PoseHistory()
+        self.subscribe("locomotion/odometry",
+                       lambda od: self.odom_history.add(float(od.stamp), _pose_of(od)))  # fmt: skip
         self.health_cache = self.latest("locomotion/health")
         self.hint_cache = self.latest("navigation/initial_pose")
         self.hint_stamp = -math.inf  # of the last hint handled
@@ -312,6 +317,8 @@ class NavigationNode(Service):
         )
 
     def _localize(self, scan: m.LaserScan, odom: Pose2, now: float) -> None:
+        """Update the map->odom transform from ``scan`` and ``odom``, the odometry at the
+        scan's stamp."""
         pts = self._scan_points(scan)
         t0 = time.perf_counter()
         if self.slam is not None:
@@ -387,13 +394,27 @@ class NavigationNode(Service):
         if hint is not None and float(hint.stamp) != self.hint_stamp:
             self.hint_stamp = float(hint.stamp)
             self.apply_hint(hint, odom, now)
-        if float(scan.stamp) > self.last_scan_stamp:
-            self.last_scan_stamp = float(scan.stamp)
-            if abs(float(scan.stamp) - now) <= self.config.node.odom_max_skew and self._upright(od):
-                self._localize(scan, odom, now)
+        stamp = float(scan.stamp)
+        if stamp > self.last_scan_stamp:
+            at_scan = self._odom_at(stamp)
+            if at_scan is not None or stamp < now:  # else its odometry is yet to come
+                self.last_scan_stamp = stamp
+                if at_scan is not None and self._upright(od):
+                    self._localize(scan, at_scan, now)
         pose = compose(self.map_to_odom, odom)
         self._publish_state(now, pose)
         self._step_job(now, pose, odom)
+
+    def _odom_at(self, stamp: float) -> Pose2 | None:
+        """Odometry at robot time ``stamp`` (a scan's), None when not known within
+        ``odom_max_skew`` of a received pose."""
+        pose = self.odom_history.at(stamp)
+        if pose is None and abs(stamp - self.last_odom_stamp) <= self.config.node.odom_max_skew:
+            # the history's own newest pose may not have come in yet (subscriber thread)
+            od = self.odom_cache.get()
+            if od is not None and float(od.stamp) == stamp:
+                pose = _pose_of(od)
+        return pose
 
     def _rebase_odometry(self, before: Pose2, after: Pose2) -> None:
         """Odometry went on in a new frame (locomotion restarted): the robot is where it
@@ -404,6 +425,7 @@ class NavigationNode(Service):
         if self.amcl is not None:
             self.amcl.rebase(after)
         self.odom_rebases += 1
+        self.odom_history.clear()  # no interpolation across the jump
         self.log.warning(
             "odometry jumped: a new odom frame (locomotion restarted?); the map pose is kept",
             before=[round(v, 3) for v in before],
@@ -574,8 +596,10 @@ class NavigationNode(Service):
             job.total = max(math.hypot(job.target[0] - odom[0], job.target[1] - odom[1]), 1e-3)
             self.approacher.reset()
             scan = self.scan_cache.get()
-            if scan is not None:
-                job.anchor = ScanAnchor(self._scan_points(scan).points, odom, self.config.anchor)
+            at_scan = None if scan is None else self._odom_at(float(scan.stamp))
+            if scan is not None and at_scan is not None:
+                job.anchor = ScanAnchor(self._scan_points(scan).points, at_scan,
+                                        self.config.anchor)  # fmt: skip
                 job.anchor_scan = float(scan.stamp)
             return True
         return True  # explore chooses its goals as it goes
@@ -620,10 +644,10 @@ class NavigationNode(Service):
             return
         if job.anchor is not None:  # hold the odometry to the scan taken at the start
             scan = self.scan_cache.get()
-            if scan is not None and float(scan.stamp) > job.anchor_scan:
+            at_scan = None if scan is None else self._odom_at(float(scan.stamp))
+            if scan is not None and at_scan is not None and float(scan.stamp) > job.anchor_scan:
                 job.anchor_scan = float(scan.stamp)
-                if abs(float(scan.stamp) - now) <= self.config.node.odom_max_skew:
-                    job.anchor.update(self._scan_points(scan).points, odom)
+                job.anchor.update(self._scan_points(scan).points, at_scan)
             odom = job.anchor.pose(odom)
         vx, vy, wz, done = self.approacher.command(
             odom, job.target, float(g.tolerance_xy), float(g.tolerance_yaw), dt=self.dt
