@@ -102,3 +102,18 @@ def test_the_scan_anchor_removes_the_odometry_drift_of_a_one_metre_move(walk):
         worst_odom = max(worst_odom, math.hypot(raw[0] - true[0], raw[1] - true[1]))
     # Algorithm 5's ±1 cm needs the anchor; the odometry drifts several centimetres
     assert worst_anchor < 0.01 and worst_odom > 0.03, (worst_anchor, worst_odom)
+
+
+def test_the_visible_surface_is_the_faces_not_the_inside_of_walls():
+    from quadmanip.services.navigation.grid import GridGeometry
+    from quadmanip.testbench.bench_navigation import visible_surface
+    from quadmanip.testbench.floor_plan import FloorPlan
+
+    geo = GridGeometry(0.05, 0.0, 0.0, 40, 40)
+    mask = np.zeros((40, 40), dtype=bool)
+    mask[:2, :] = mask[-2:, :] = mask[:, :2] = mask[:, -2:] = True  # 10 cm walls
+    mask[20:27, 3:12] = True  # a block 5 cm from the west wall: a slit between them
+    surf = visible_surface(FloorPlan(mask, geo), start=(1.0, 0.5))
+    assert surf[1, 10] and not surf[0, 10]  # the south wall's face, not its back
+    assert surf[23, 11] and surf[20, 8] and surf[26, 8]  # the block's end and sides
+    assert not surf[23, 3] and not surf[23, 5]  # its back (a 5 cm slit) and its inside
