@@ -298,6 +298,7 @@ def part_nav(
             # where that stand pose is in the world, through the odometry at the goal
             w_T_o = compose(g, invert(o))
             want = compose(w_T_o, (target_odom[0], target_odom[1], heading))
+            t_start = s.now()
             res, reason = _send_and_wait(
                 s, "approach",
                 m.ApproachGoal(stamp=s.now(), target=np.array(target_odom), frame="odom",
@@ -306,6 +307,7 @@ def part_nav(
             end = _gt_pose(s)
             row = {
                 "distance_m": round(dist, 3),
+                "t_start": round(t_start, 3),  # sim time: to find it in the recording
                 "status": None if res is None else res.status,
                 "reason": reason,
                 "error_m": round(math.hypot(end[0] - want[0], end[1] - want[1]), 4),

@@ -13,7 +13,13 @@ few cm/s, and it follows a command with a lag of ~0.25 s; so the controller
 - predicts where the robot stops from a first-order model of its own commands
   (``lag``, with the same deadband), so a minimum-speed creep is cut early instead of
   overshooting by speed x lag;
-- reports ``done`` only after the pose stayed within tolerance for ``settle_time``.
+- reports ``done`` only after the pose stayed within tolerance for ``settle_time``, and,
+  when it is told whether the robot stands (locomotion's phase ``balance``), only while it
+  stands: a trot brought to a stop still moves the trunk as the last feet land and the
+  standing balance centres it over them. *Measured* (navigation bench, 12 approaches):
+  5-18 mm of motion in the 0.5 s after a ``done`` given while trotting, which made true
+  errors of 0.8-2.6 cm out of 5-9 mm by navigation's own estimate. Within tolerance and
+  standing, the controller holds still instead of stepping again for the last millimetres.
 """
 
 from __future__ import annotations
@@ -45,6 +51,7 @@ class ApproachConfig:
     deadband_wz: float = 0.05  # rad/s
     inner_band: float = 0.4  # of the tolerance: no minimum-speed push inside it
     settle_time: float = 0.5  # s within tolerance before ``done``
+    stop_wait: float = 1.5  # s: within tolerance and not standing this long: done anyway
 
 
 def approach_pose(
@@ -70,6 +77,7 @@ class ApproachController:
     def reset(self) -> None:
         """Forget the settle timer and the velocity model (a new approach)."""
         self._settled = 0.0
+        self._held = 0.0  # s within tolerance while the robot was not (yet) standing
         self._model = np.zeros(3)  # predicted actual body velocity (vx, vy, wz)
         self._last = np.zeros(3)
 
@@ -80,18 +88,25 @@ class ApproachController:
         tol_xy: float = 0.01,
         tol_yaw: float = math.radians(1.0),
         dt: float | None = None,
+        standing: bool | None = None,
     ) -> tuple[float, float, float, bool]:
         """(vx, vy, wz, done): the base-frame velocity that brings ``pose`` onto ``goal``
-        (both in one frame); ``done`` after ``settle_time`` within the tolerances."""
+        (both in one frame); ``done`` after ``settle_time`` within the tolerances and, when
+        ``standing`` is given, standing (or ``stop_wait`` within them without standing)."""
         cfg = self.config
         dt = cfg.dt if dt is None else dt
         ex, ey, eyaw = compose(invert(pose), goal)
         e = np.array([ex, ey, float(wrap(eyaw))])
         within = math.hypot(ex, ey) <= tol_xy and abs(e[2]) <= tol_yaw
-        self._settled = self._settled + dt if within else 0.0
+        self._held = self._held + dt if within and standing is False else 0.0
+        stood = standing is None or standing or self._held >= cfg.stop_wait
+        self._settled = self._settled + dt if within and stood else 0.0
         if within and self._settled >= cfg.settle_time:
             self._advance(np.zeros(3), dt)
             return 0.0, 0.0, 0.0, True
+        if within and standing:  # hold still: a step now would only move it again
+            self._advance(np.zeros(3), dt)
+            return 0.0, 0.0, 0.0, False
         # the error left once the robot has stopped (its velocity decays over ``lag``)
         pred = e - self._model * cfg.lag
         cmd = np.array([cfg.gain_xy * pred[0], cfg.gain_xy * pred[1], cfg.gain_yaw * pred[2]])

@@ -649,9 +649,12 @@ class NavigationNode(Service):
                 job.anchor_scan = float(scan.stamp)
                 job.anchor.update(self._scan_points(scan).points, at_scan)
             odom = job.anchor.pose(odom)
+        h = self.health_cache.get()
+        standing = None if h is None or not h.phase else h.phase == "balance"
         vx, vy, wz, done = self.approacher.command(
-            odom, job.target, float(g.tolerance_xy), float(g.tolerance_yaw), dt=self.dt
-        )
+            odom, job.target, float(g.tolerance_xy), float(g.tolerance_yaw), dt=self.dt,
+            standing=standing,
+        )  # fmt: skip
         if done:
             self._finish(job, "reached", "reached", odom)
             return

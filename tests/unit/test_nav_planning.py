@@ -291,6 +291,60 @@ def test_approach_controller_reaches_targets_precisely():
     assert max(times) < 20.0
 
 
+class StoppingBase(LeggedBase):
+    """A legged base that stands after 0.3 s of zero commands: its creep stops and, as the
+    last feet land and the balance centres the trunk over them, it shifts up to 8 mm."""
+
+    def __init__(self, pose, seed=0, **kw):
+        super().__init__(pose, seed=seed, **kw)
+        self.idle = 0.0
+        self.standing = True
+
+    def step(self, cmd, dt=0.05, sub=10):
+        cmd = np.where(np.abs(np.asarray(cmd, dtype=float)) >= self.dead, cmd, 0.0)
+        self.idle = self.idle + dt if not np.any(cmd) else 0.0
+        if self.standing and not np.any(cmd):
+            return self.pose
+        if self.idle >= 0.3:
+            shift = self.rng.uniform(-0.008, 0.008, 2)
+            self.pose = compose(self.pose, (float(shift[0]), float(shift[1]), 0.0))
+            self.v[:] = 0.0
+            self.standing = True
+            return self.pose
+        self.standing = False
+        return super().step(cmd, dt, sub)
+
+
+def test_the_approach_ends_standing_within_tolerance():
+    """Told whether the robot stands, the approach says done only while it stands, so the
+    stance shift of the stop is inside the result; without it, 'done' came while trotting
+    and the stop moved the robot out of the tolerance."""
+    tol_xy, tol_yaw = 0.01, math.radians(1.0)
+    rng = np.random.default_rng(5)
+    out_without = 0
+    for k in range(8):
+        goal = (float(rng.uniform(0.5, 1.2)), float(rng.uniform(-0.4, 0.4)), 0.3)
+        for told in (True, False):
+            base = StoppingBase((0.0, 0.0, 0.0), deadband=0.02, deadband_wz=0.05, seed=k)
+            ctl = ApproachController(ApproachConfig())
+            t, done = 0.0, False
+            while t < 30.0 and not done:
+                standing = base.standing if told else None
+                vx, vy, wz, done = ctl.command(base.pose, goal, tol_xy, tol_yaw, standing=standing)
+                if not done:
+                    base.step((vx, vy, wz))
+                t += 0.05
+            assert done, (k, told)
+            for _ in range(10):  # nothing more is commanded: the robot stops and stands
+                base.step((0.0, 0.0, 0.0))
+            err = math.dist(base.pose[:2], goal[:2])
+            if told:
+                assert base.standing and err <= tol_xy, (k, err)
+            else:
+                out_without += err > tol_xy
+    assert out_without >= 1
+
+
 def test_planner_config_is_frozen():
     with pytest.raises(AttributeError):
         PlannerConfig().cost_weight = 1.0  # type: ignore[misc]
