@@ -115,16 +115,22 @@ def map_scores(
 
 def random_free_poses(plan: FloorPlan, n: int, seed: int, clearance: float = 0.5) -> list[Pose2]:
     """``n`` poses in the house's reachable free space at least ``clearance`` from any
-    obstacle or table top, alternating between the two rooms (x < 5 and x > 5)."""
+    obstacle, table top or box on the floor, alternating between the two rooms (x < 5 and x > 5)."""
     rng = np.random.default_rng([seed, 0x4E41])
     free = _reachable_free(plan, HOUSE_START[:2])
     # under a table the LiDAR sees only legs, but the robot (and its arm) do not fit there
     from quadmanip.sim.world.house import load_house
 
+    # nor on furniture below the LiDAR's plane (the boxes on the floor: a goal on the
+    # black box's edge was drawn, and refused as "too close to an obstacle")
+    house = load_house()
     blocked = plan.mask.copy()
-    for t in load_house().tables:
-        lo = np.asarray(t.center) - np.asarray(t.size) / 2
-        hi = np.asarray(t.center) + np.asarray(t.size) / 2
+    footprints = [(t.center, t.size) for t in house.tables]
+    footprints += [(b.center, b.size[:2]) for b in house.blocks]
+    footprints += [(c.center, c.size[:2]) for c in house.containers if c.on == "floor"]
+    for center, size in footprints:
+        lo = np.asarray(center) - np.asarray(size) / 2
+        hi = np.asarray(center) + np.asarray(size) / 2
         (r0, r1), (c0, c1) = plan.geometry.to_cell(np.array([lo, hi]))
         blocked[max(r0, 0) : r1 + 1, max(c0, 0) : c1 + 1] = True
     dist = ndimage.distance_transform_edt(~blocked) * plan.geometry.resolution

@@ -457,6 +457,11 @@ class NavigationNode(Service):
                             round(float(hint.yaw), 3)])  # fmt: skip
         return what
 
+    def _standing(self) -> bool | None:
+        """Whether locomotion stands (phase ``balance``) rather than trots; None unknown."""
+        h = self.health_cache.get()
+        return None if h is None or not h.phase else h.phase == "balance"
+
     def _upright(self, od: m.Odometry) -> bool:
         """Whether the trunk stands high and level enough for its scan to be a plan view
         (not while lying or standing up); keeps its attitude for the floor filter."""
@@ -620,7 +625,7 @@ class NavigationNode(Service):
 
     def _step_navigate(self, job: _Job, now: float, pose: Pose2) -> None:
         assert self.costmap is not None
-        st = self.navigator.step(now, pose, self.costmap)
+        st = self.navigator.step(now, pose, self.costmap, standing=self._standing())
         if st.new_path is not None:
             poses = self.navigator.path_poses()
             if poses is not None:
@@ -649,11 +654,9 @@ class NavigationNode(Service):
                 job.anchor_scan = float(scan.stamp)
                 job.anchor.update(self._scan_points(scan).points, at_scan)
             odom = job.anchor.pose(odom)
-        h = self.health_cache.get()
-        standing = None if h is None or not h.phase else h.phase == "balance"
         vx, vy, wz, done = self.approacher.command(
             odom, job.target, float(g.tolerance_xy), float(g.tolerance_yaw), dt=self.dt,
-            standing=standing,
+            standing=self._standing(),
         )  # fmt: skip
         if done:
             self._finish(job, "reached", "reached", odom)
