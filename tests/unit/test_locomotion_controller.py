@@ -128,6 +128,29 @@ def test_stops_and_stands_within_half_a_second_of_the_last_command():
     assert np.linalg.norm(run.plant.true_position()[:2] - p_stop[:2]) < 0.05
 
 
+@pytest.mark.parametrize("v", [(0.05, 0.03, 0.0), (0.0, -0.06, 0.1)])
+def test_a_slow_trot_that_stops_leaves_the_trunk_where_it_stopped(v):
+    """The precise approach creeps and stops: standing, the trunk stays where the trot
+    stopped instead of moving over the feet's centre (that moved it ~5 mm here, 5-18 mm
+    in the full stack, after the approach had said it was there)."""
+    run = Run()
+    run.stand()
+    run.walk(v, run.plant.time + 2.0, settle=0.5)
+
+    def zero(t: float) -> None:
+        if round(t / 0.002) % 10 == 0:
+            run.ctl.set_velocity(0.0, 0.0, 0.0, now=t)
+
+    t0 = run.plant.time
+    while run.ctl.phase != "balance" and run.plant.time < t0 + 2.0:
+        run.until(run.plant.time + 0.01, zero)
+    assert run.ctl.phase == "balance"
+    p_stop = run.plant.true_position()
+    run.until(run.plant.time + 1.5, zero)
+    assert np.linalg.norm(run.plant.true_position()[:2] - p_stop[:2]) < 0.003
+    assert not run.fell
+
+
 def test_crouch_and_com_shift_follow_body_pose_commands():
     run = Run()
     run.stand()
