@@ -20,10 +20,6 @@ few cm/s, and it follows a command with a lag of ~0.25 s; so the controller
   5-18 mm of motion in the 0.5 s after a ``done`` given while trotting, which made true
   errors of 0.8-2.6 cm out of 5-9 mm by navigation's own estimate. Within tolerance and
   standing, the controller holds still instead of stepping again for the last millimetres.
-- counts as within tolerance at ``done_fraction`` of it: the caller's tolerance bounds
-  the true error, and the pose it steers on (odometry held to a scan) is itself good to
-  about 5 mm. With the whole tolerance, 1 of 12 approaches ended 1.5 cm from the target
-  (0.9 cm by its own estimate).
 """
 
 from __future__ import annotations
@@ -54,7 +50,6 @@ class ApproachConfig:
     deadband: float = 0.02  # m/s: the model's deadband (commands below it do nothing)
     deadband_wz: float = 0.05  # rad/s
     inner_band: float = 0.4  # of the tolerance: no minimum-speed push inside it
-    done_fraction: float = 0.6  # of the tolerance: within it by its own estimate is done
     settle_time: float = 0.5  # s within tolerance before ``done``
     stop_wait: float = 1.5  # s: within tolerance and not standing this long: done anyway
 
@@ -102,8 +97,7 @@ class ApproachController:
         dt = cfg.dt if dt is None else dt
         ex, ey, eyaw = compose(invert(pose), goal)
         e = np.array([ex, ey, float(wrap(eyaw))])
-        f = cfg.done_fraction
-        within = math.hypot(ex, ey) <= f * tol_xy and abs(e[2]) <= f * tol_yaw
+        within = math.hypot(ex, ey) <= tol_xy and abs(e[2]) <= tol_yaw
         self._held = self._held + dt if within and standing is False else 0.0
         stood = standing is None or standing or self._held >= cfg.stop_wait
         self._settled = self._settled + dt if within and stood else 0.0
