@@ -13,11 +13,6 @@ control rate with the robot's map pose. It owns nothing but decisions:
   overall deadline (``give_up_after``) end it ``blocked`` with the last reason: Nav2's
   users most often report recoveries that never trigger or never end.
 * A goal the static map itself cannot reach ends ``no_path`` at once.
-* ``reached`` only once the robot stands within tolerance, when the node says whether it
-  stands (locomotion's phase): a trot brought to a stop moves the trunk 5-18 mm as the
-  last feet land (measured on the precise approach); a stop that ends outside the
-  tolerance is aligned again. Without word of standing for ``stop_wait``, the follower's
-  own "stopped" is taken.
 
 Outcomes and reasons follow :data:`quadmanip.common.messages.NAV_OUTCOMES`.
 """
@@ -62,7 +57,6 @@ class NavigatorConfig:
     path_check_ahead: float = 2.0  # m of path ahead checked for new obstacles
     escape_speed: float = 0.12  # m/s: stepping out of the inscribed zone, away from obstacles
     escape_time: float = 4.0  # s at most per escape
-    stop_wait: float = 1.5  # s: within tolerance and not yet standing this long: reached
 
 
 @dataclass(frozen=True)
@@ -102,7 +96,6 @@ class _Goal:
     recovery_origin: Pose2 | None = None
     last_reason: str = ""
     escape_until: float = -math.inf
-    t_stopping: float | None = None  # robot time the follower first said done (then stop)
 
 
 class Navigator:
@@ -214,11 +207,8 @@ class Navigator:
         self.follower.reset()
         return NavStep(0.0, 0.0, 0.0, "active", f"recovering ({g.recoveries}): {g.last_reason}")
 
-    def step(
-        self, now: float, pose: Pose2, costmap: Costmap, standing: bool | None = None
-    ) -> NavStep:
-        """One control step at robot time ``now`` with the robot's map pose; ``standing``:
-        whether the robot stands (not trotting), None when not known."""
+    def step(self, now: float, pose: Pose2, costmap: Costmap) -> NavStep:
+        """One control step at robot time ``now`` with the robot's map pose."""
         dt = min(max(now - self._t_last, 1e-3), 0.2) if self._t_last > -math.inf else None
         self._t_last = now
         g = self.goal
@@ -272,12 +262,7 @@ class Navigator:
             dt=dt,
         )
         if cmd.done:
-            if g.t_stopping is None:
-                g.t_stopping = now
-            if standing is False and now - g.t_stopping < cfg.stop_wait:
-                return NavStep(0.0, 0.0, 0.0, "active", "stopping", 0.0, mode="stop")
             return self._end("reached", "reached", 0.0)
-        g.t_stopping = None
         if cmd.blocked:
             g.last_reason = "an obstacle in the way"
             return self._start_recovery(g, now, pose, costmap)

@@ -625,7 +625,7 @@ class NavigationNode(Service):
 
     def _step_navigate(self, job: _Job, now: float, pose: Pose2) -> None:
         assert self.costmap is not None
-        st = self.navigator.step(now, pose, self.costmap, standing=self._standing())
+        st = self.navigator.step(now, pose, self.costmap)
         if st.new_path is not None:
             poses = self.navigator.path_poses()
             if poses is not None:

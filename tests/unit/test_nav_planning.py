@@ -348,27 +348,3 @@ def test_the_approach_ends_standing_within_tolerance():
 def test_planner_config_is_frozen():
     with pytest.raises(AttributeError):
         PlannerConfig().cost_weight = 1.0  # type: ignore[misc]
-
-
-def test_navigate_is_reached_only_standing_within_tolerance(costmap):
-    """The navigator ends ``reached`` once the robot stands within tolerance: the stance
-    shift of the stop is inside the result."""
-    from quadmanip.services.navigation.navigator import Navigator
-
-    rng = np.random.default_rng(3)
-    for k in range(4):
-        base = StoppingBase((*START, 0.0), seed=k)
-        nav = Navigator()
-        goal = (float(START[0] + rng.uniform(0.8, 1.5)), float(START[1] + rng.uniform(-0.3, 0.3)),
-                float(rng.uniform(-1.0, 1.0)))  # fmt: skip
-        assert nav.start(goal, 0.0, base.pose, costmap, costmap, 0.03, math.radians(2)) == ""
-        t, state, stood_at_end = 0.0, "active", False
-        while t < 60.0 and state == "active":
-            st = nav.step(t, base.pose, costmap, standing=base.standing)
-            state = st.state
-            if state == "active":
-                base.step((st.vx, st.vy, st.wz))
-            stood_at_end = base.standing
-            t += 0.05
-        assert state == "reached", (k, state, st.reason)
-        assert stood_at_end and math.dist(base.pose[:2], goal[:2]) <= 0.03, k
