@@ -113,10 +113,9 @@ def map_scores(
     return {"precision": round(precision, 4), "recall": round(recall, 4), "f1": round(f1, 4)}
 
 
-def random_free_poses(plan: FloorPlan, n: int, seed: int, clearance: float = 0.5) -> list[Pose2]:
-    """``n`` poses in the house's reachable free space at least ``clearance`` from any
-    obstacle, table top or box on the floor, alternating between the two rooms (x < 5 and x > 5)."""
-    rng = np.random.default_rng([seed, 0x4E41])
+def standable(plan: FloorPlan, clearance: float) -> np.ndarray:
+    """Cells of the house's reachable free space at least ``clearance`` from any obstacle,
+    table top or box on the floor: where the robot can be sent."""
     free = _reachable_free(plan, HOUSE_START[:2])
     # under a table the LiDAR sees only legs, but the robot (and its arm) do not fit there
     from quadmanip.sim.world.house import load_house
@@ -134,8 +133,14 @@ def random_free_poses(plan: FloorPlan, n: int, seed: int, clearance: float = 0.5
         (r0, r1), (c0, c1) = plan.geometry.to_cell(np.array([lo, hi]))
         blocked[max(r0, 0) : r1 + 1, max(c0, 0) : c1 + 1] = True
     dist = ndimage.distance_transform_edt(~blocked) * plan.geometry.resolution
-    ok = free & (dist >= clearance)
-    rows, cols = np.nonzero(ok)
+    return free & (dist >= clearance)
+
+
+def random_free_poses(plan: FloorPlan, n: int, seed: int, clearance: float = 0.5) -> list[Pose2]:
+    """``n`` poses where the robot can be sent (:func:`standable`), alternating between the
+    two rooms (x < 5 and x > 5)."""
+    rng = np.random.default_rng([seed, 0x4E41])
+    rows, cols = np.nonzero(standable(plan, clearance))
     centres = plan.geometry.cell_center(rows, cols)
     rooms = [centres[centres[:, 0] < 4.9], centres[centres[:, 0] > 5.1]]
     out: list[Pose2] = []
@@ -285,6 +290,7 @@ def part_nav(
             out["goals"].append(row)
             print(f"  goal {k + 1}/{len(goals)}: {row}", flush=True)
         rng = np.random.default_rng([seed, 0xA7])
+        fits = standable(plan, 0.45)
         odom = s.bus.latest("locomotion/odometry")
         for k in range(n_approach):
             # back to open floor first, then a target 0.5-1.5 m ahead (+-30 deg) in odom
@@ -296,14 +302,18 @@ def part_nav(
             o: Pose2 = (float(od.position[0]), float(od.position[1]),
                         yaw_from_quat(od.orientation))  # fmt: skip
             g = _gt_pose(s)
-            dist = float(rng.uniform(0.5, 1.5))
-            bearing = float(rng.uniform(-0.5, 0.5))
-            heading = o[2] + float(rng.uniform(-0.5, 0.5))
-            target_odom = (o[0] + dist * math.cos(o[2] + bearing),
-                           o[1] + dist * math.sin(o[2] + bearing))  # fmt: skip
-            # where that stand pose is in the world, through the odometry at the goal
+            # where a stand pose is in the world, through the odometry at the goal
             w_T_o = compose(g, invert(o))
-            want = compose(w_T_o, (target_odom[0], target_odom[1], heading))
+            for _ in range(100):  # a target the robot fits at (one by the sofa was drawn)
+                dist = float(rng.uniform(0.5, 1.5))
+                bearing = float(rng.uniform(-0.5, 0.5))
+                heading = o[2] + float(rng.uniform(-0.5, 0.5))
+                target_odom = (o[0] + dist * math.cos(o[2] + bearing),
+                               o[1] + dist * math.sin(o[2] + bearing))  # fmt: skip
+                want = compose(w_T_o, (target_odom[0], target_odom[1], heading))
+                (r,), (c,) = plan.geometry.to_cell(np.array([want[:2]]))
+                if fits[r, c]:
+                    break
             t_start = s.now()
             res, reason = _send_and_wait(
                 s, "approach",
