@@ -601,8 +601,10 @@ class NavigationNode(Service):
             job.total = max(math.hypot(job.target[0] - odom[0], job.target[1] - odom[1]), 1e-3)
             self.approacher.reset()
             scan = self.scan_cache.get()
-            at_scan = None if scan is None else self._odom_at(float(scan.stamp))
-            if scan is not None and at_scan is not None:
+            if scan is not None:
+                # (the newest odometry when the scan's is not known: the robot stands still
+                # at an approach's start, and an approach without an anchor drifts cm)
+                at_scan = self._odom_at(float(scan.stamp)) or odom
                 job.anchor = ScanAnchor(self._scan_points(scan).points, at_scan,
                                         self.config.anchor)  # fmt: skip
                 job.anchor_scan = float(scan.stamp)
