@@ -31,7 +31,6 @@ class NodeConfig:
     initial_std: tuple[float, float, float] = (0.1, 0.1, 5.0)  # m, m, deg
     global_localization: bool = False
     input_timeout: float = 1.0  # s without odometry (wall) or scans (robot time): "lost"
-    odom_max_skew: float = 0.1  # s: a scan further than this from the odometry is skipped
     map_period: float = 5.0  # s (wall) between map publications (and on every change)
     costmap_period: float = 1.0
     mapping_costmap_period: float = 1.0  # s (robot time) between costmap rebuilds while mapping

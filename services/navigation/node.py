@@ -182,7 +182,8 @@ class NavigationNode(Service):
         self.t_costmap_build = -math.inf
         self.scan_cache = self.latest("sim/scan")
         self.odom_cache = self.latest("locomotion/odometry")
-        # the odometry of each scan's own instant (see pose_history)
+        # the odometry of each scan's own instant (see pose_history); every 500 Hz message:
+        # decoding and keeping one costs ~13 us here, about 0.7 % of a core
         self.odom_history = PoseHistory()
         self.subscribe("locomotion/odometry",
                        lambda od: self.odom_history.add(float(od.stamp), _pose_of(od)))  # fmt: skip
@@ -396,7 +397,7 @@ class NavigationNode(Service):
             self.apply_hint(hint, odom, now)
         stamp = float(scan.stamp)
         if stamp > self.last_scan_stamp:
-            at_scan = self._odom_at(stamp)
+            at_scan = self.odom_history.at(stamp)
             if at_scan is not None or stamp < now:  # else its odometry is yet to come
                 self.last_scan_stamp = stamp
                 if at_scan is not None and self._upright(od):
@@ -404,17 +405,6 @@ class NavigationNode(Service):
         pose = compose(self.map_to_odom, odom)
         self._publish_state(now, pose)
         self._step_job(now, pose, odom)
-
-    def _odom_at(self, stamp: float) -> Pose2 | None:
-        """Odometry at robot time ``stamp`` (a scan's), None when not known within
-        ``odom_max_skew`` of a received pose."""
-        pose = self.odom_history.at(stamp)
-        if pose is None and abs(stamp - self.last_odom_stamp) <= self.config.node.odom_max_skew:
-            # the history's own newest pose may not have come in yet (subscriber thread)
-            od = self.odom_cache.get()
-            if od is not None and float(od.stamp) == stamp:
-                pose = _pose_of(od)
-        return pose
 
     def _rebase_odometry(self, before: Pose2, after: Pose2) -> None:
         """Odometry went on in a new frame (locomotion restarted): the robot is where it
@@ -604,7 +594,7 @@ class NavigationNode(Service):
             if scan is not None:
                 # (the newest odometry when the scan's is not known: the robot stands still
                 # at an approach's start, and an approach without an anchor drifts cm)
-                at_scan = self._odom_at(float(scan.stamp)) or odom
+                at_scan = self.odom_history.at(float(scan.stamp)) or odom
                 job.anchor = ScanAnchor(self._scan_points(scan).points, at_scan,
                                         self.config.anchor)  # fmt: skip
                 job.anchor_scan = float(scan.stamp)
@@ -651,7 +641,7 @@ class NavigationNode(Service):
             return
         if job.anchor is not None:  # hold the odometry to the scan taken at the start
             scan = self.scan_cache.get()
-            at_scan = None if scan is None else self._odom_at(float(scan.stamp))
+            at_scan = None if scan is None else self.odom_history.at(float(scan.stamp))
             if scan is not None and at_scan is not None and float(scan.stamp) > job.anchor_scan:
                 job.anchor_scan = float(scan.stamp)
                 job.anchor.update(self._scan_points(scan).points, at_scan)

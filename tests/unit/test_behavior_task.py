@@ -45,6 +45,7 @@ from quadmanip.services.behavior.robot_api import GraspPlan, HandlePlan, Outcome
 from quadmanip.services.behavior.service_watch import ServiceWatch
 from quadmanip.services.behavior.tidy_task import (
     TidyTask,
+    _in_box,
     classes_from_catalogue,
     knowledge_problems,
 )
@@ -550,11 +551,23 @@ def _calls(house: FakeHouse, name: str) -> list[object]:
 
 def _under_feet(p: tuple[float, ...], pose: tuple[float, float, float]) -> bool:
     """Whether ``p`` lies in the feet's box (``feet_box``) about a stance ``pose``."""
-    dx, dy = p[0] - pose[0], p[1] - pose[1]
-    along = dx * math.cos(pose[2]) + dy * math.sin(pose[2])
-    across = dy * math.cos(pose[2]) - dx * math.sin(pose[2])
-    half_len, half_wid = CFG.task.feet_box
-    return abs(along) <= half_len and abs(across) <= half_wid
+    return _in_box(p, pose, CFG.task.feet_box)
+
+
+CAN = Thing("tomato_soup_can", 1, (2.5, 1.4, 0.05))
+CAN_START = (1.0, 1.4, 0.0)  # straight from the west: the stance at x = 2.5 - standoff
+
+
+def _approach_can(*others: Thing) -> tuple[FakeHouse, str]:
+    """The task approaches the soup can on the floor from ``CAN_START``, the memory
+    holding ``others`` too; the house and the step the approach went on to."""
+    house = FakeHouse([CAN, *others])
+    house.at = CAN_START
+    for t in (CAN, *others):
+        house.memory[t.track_id] = SeenObject(t.track_id, t.label, t.position)
+    task = _task(house)
+    task.target = ObjectRecord("tomato_soup_can", 1, "tray", CAN.position, t_found=0.0)
+    return house, task._approach().value
 
 
 def _home(label: str) -> str:
@@ -994,19 +1007,12 @@ def test_an_approach_stopped_by_furniture_at_once_walks_clear_and_approaches_aga
 def test_an_approach_keeps_other_floor_objects_from_under_the_stances_feet() -> None:
     # paper-5: the line from the robot to its stance passed clear of a Rubik's cube, but
     # the cube lay beside the stance, under a hind foot, and the robot fell
-    can = Thing("tomato_soup_can", 1, (2.5, 1.4, 0.05))
-    start = (1.0, 1.4, 0.0)  # straight from the west: stance at x = 2.5 - standoff
-    stance_x = can.position[0] - CFG.task.probe_standoff
+    stance_x = CAN.position[0] - CFG.task.probe_standoff
     # by the left front foot, beyond the line's end: over step_clearance from the line
     cube = Thing("rubiks_cube", 5, (stance_x + 0.25, 1.4 + 0.22, 0.03))
     assert math.hypot(0.25, 0.22) > CFG.task.step_clearance
-    house = FakeHouse([can, cube])
-    house.at = start
-    for t in (can, cube):
-        house.memory[t.track_id] = SeenObject(t.track_id, t.label, t.position)
-    task = _task(house)
-    task.target = ObjectRecord("tomato_soup_can", 1, "tray", can.position, t_found=0.0)
-    assert task._approach().value == "probe"
+    house, step = _approach_can(cube)
+    assert step == "probe"
     (_, standoff, heading), *_ = _calls(house, "approach")
     assert heading is not None and abs(heading) > 0.3  # turned: the cube is off its feet
     stance = (2.5 - standoff * math.cos(heading), 1.4 - standoff * math.sin(heading), heading)
@@ -1032,27 +1038,17 @@ def test_an_approach_goes_round_another_object_on_the_floor_not_over_it() -> Non
     # paper-3: an approach among a mug, a Rubik's cube and a coffee can tripped the robot;
     # objects on the floor are below the LiDAR, so neither navigation nor the approach's
     # guard sees them: the task steers the straight approach clear of those it knows
-    can = Thing("tomato_soup_can", 1, (2.5, 1.4, 0.05))
     cube = Thing("rubiks_cube", 5, (2.25, 1.45, 0.03))  # just short of the can, on its line
-    house = FakeHouse([can, cube])
-    start = house.at = (1.0, 1.4, 0.0)
-    for t in (can, cube):
-        house.memory[t.track_id] = SeenObject(t.track_id, t.label, t.position)
-    task = _task(house)
-    task.target = ObjectRecord("tomato_soup_can", 1, "tray", can.position, t_found=0.0)
-    assert task._approach().value == "probe"
+    start = CAN_START
+    house, step = _approach_can(cube)
+    assert step == "probe"
     (target, standoff, heading), *_ = _calls(house, "approach")
     assert heading is not None and abs(heading) > 0.3  # turned off the straight line
     stance = (2.5 - standoff * math.cos(heading), 1.4 - standoff * math.sin(heading))
     (ux, uy), (vx, vy) = np.subtract(stance, start[:2]), np.subtract(cube.position[:2], start[:2])
     assert abs(ux * vy - uy * vx) / math.dist(stance, start[:2]) > CFG.task.step_clearance
     # with nothing in the way, it faces the object from where it comes (Algorithm 5)
-    house = FakeHouse([can])
-    house.at = start
-    house.memory[1] = SeenObject(1, can.label, can.position)
-    task = _task(house)
-    task.target = ObjectRecord("tomato_soup_can", 1, "tray", can.position, t_found=0.0)
-    task._approach()
+    house, _ = _approach_can()
     assert _calls(house, "approach")[0][2] is None
 
 
