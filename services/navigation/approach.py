@@ -18,8 +18,13 @@ few cm/s, and it follows a command with a lag of ~0.25 s; so the controller
   stands: a trot brought to a stop still moves the trunk as the last feet land and the
   standing balance centres it over them. *Measured* (navigation bench, 12 approaches):
   5-18 mm of motion in the 0.5 s after a ``done`` given while trotting, which made true
-  errors of 0.8-2.6 cm out of 5-9 mm by navigation's own estimate. Within tolerance and
-  standing, the controller holds still instead of stepping again for the last millimetres.
+  errors of 0.8-2.6 cm out of 5-9 mm by navigation's own estimate;
+- aims for ``aim`` of the tolerance (half) and holds still, standing, once there: the
+  true error adds the scan anchor's few millimetres to the controller's own, so stopping
+  anywhere inside the tolerance left true errors of 1-2 cm (*measured*: navigation's own
+  final errors 2.5-9.2 mm over 20 approaches). A robot standing inside the tolerance but
+  outside the aim steps again, for at most ``patience`` seconds; then it is done where
+  it stands (the steps of a trot brought to a stop are a few millimetres themselves).
 """
 
 from __future__ import annotations
@@ -52,6 +57,8 @@ class ApproachConfig:
     inner_band: float = 0.4  # of the tolerance: no minimum-speed push inside it
     settle_time: float = 0.5  # s within tolerance before ``done``
     stop_wait: float = 1.5  # s: within tolerance and not standing this long: done anyway
+    aim: float = 0.5  # of the tolerance: where the approach means to stop
+    patience: float = 2.0  # s standing within tolerance but not the aim: then done there
 
 
 def approach_pose(
@@ -78,6 +85,7 @@ class ApproachController:
         """Forget the settle timer and the velocity model (a new approach)."""
         self._settled = 0.0
         self._held = 0.0  # s within tolerance while the robot was not (yet) standing
+        self._waited = 0.0  # s standing within tolerance but outside the aim
         self._model = np.zeros(3)  # predicted actual body velocity (vx, vy, wz)
         self._last = np.zeros(3)
 
@@ -91,22 +99,28 @@ class ApproachController:
         standing: bool | None = None,
     ) -> tuple[float, float, float, bool]:
         """(vx, vy, wz, done): the base-frame velocity that brings ``pose`` onto ``goal``
-        (both in one frame); ``done`` after ``settle_time`` within the tolerances and, when
-        ``standing`` is given, standing (or ``stop_wait`` within them without standing)."""
+        (both in one frame); ``done`` after ``settle_time`` within ``aim`` of the tolerances
+        (or within them after ``patience`` s of trying for the aim) and, when ``standing``
+        is given, standing (or ``stop_wait`` within them without standing)."""
         cfg = self.config
         dt = cfg.dt if dt is None else dt
         ex, ey, eyaw = compose(invert(pose), goal)
         e = np.array([ex, ey, float(wrap(eyaw))])
-        within = math.hypot(ex, ey) <= tol_xy and abs(e[2]) <= tol_yaw
+        exy = math.hypot(ex, ey)
+        within = exy <= tol_xy and abs(e[2]) <= tol_yaw
+        on_aim = exy <= cfg.aim * tol_xy and abs(e[2]) <= cfg.aim * tol_yaw
         self._held = self._held + dt if within and standing is False else 0.0
         stood = standing is None or standing or self._held >= cfg.stop_wait
-        self._settled = self._settled + dt if within and stood else 0.0
-        if within and self._settled >= cfg.settle_time:
+        self._waited = self._waited + dt if within and stood and not on_aim else 0.0
+        settle = within and stood and (on_aim or self._waited >= cfg.patience)
+        self._settled = self._settled + dt if settle else 0.0
+        if settle and self._settled >= cfg.settle_time:
             self._advance(np.zeros(3), dt)
             return 0.0, 0.0, 0.0, True
-        if within and standing:  # hold still: a step now would only move it again
-            self._advance(np.zeros(3), dt)
+        if within and standing and (on_aim or self._waited >= cfg.patience):
+            self._advance(np.zeros(3), dt)  # hold still: a step now would only move it again
             return 0.0, 0.0, 0.0, False
+        tol_xy, tol_yaw = cfg.aim * tol_xy, cfg.aim * tol_yaw  # regulate onto the aim
         # the error left once the robot has stopped (its velocity decays over ``lag``)
         pred = e - self._model * cfg.lag
         cmd = np.array([cfg.gain_xy * pred[0], cfg.gain_xy * pred[1], cfg.gain_yaw * pred[2]])

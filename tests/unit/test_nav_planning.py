@@ -317,8 +317,8 @@ class StoppingBase(LeggedBase):
 
 def test_the_approach_ends_standing_within_tolerance():
     """Told whether the robot stands, the approach says done only while it stands, so the
-    stance shift of the stop is inside the result; without it, 'done' came while trotting
-    and the stop moved the robot out of the tolerance."""
+    stance shift of the stop is inside the result; without it (and without the aim's
+    margin), 'done' came while trotting and the stop moved the robot out of the tolerance."""
     tol_xy, tol_yaw = 0.01, math.radians(1.0)
     rng = np.random.default_rng(5)
     out_without = 0
@@ -326,7 +326,7 @@ def test_the_approach_ends_standing_within_tolerance():
         goal = (float(rng.uniform(0.5, 1.2)), float(rng.uniform(-0.4, 0.4)), 0.3)
         for told in (True, False):
             base = StoppingBase((0.0, 0.0, 0.0), deadband=0.02, deadband_wz=0.05, seed=k)
-            ctl = ApproachController(ApproachConfig())
+            ctl = ApproachController(ApproachConfig() if told else ApproachConfig(aim=1.0))
             t, done = 0.0, False
             while t < 30.0 and not done:
                 standing = base.standing if told else None
