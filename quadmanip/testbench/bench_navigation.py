@@ -60,7 +60,7 @@ from quadmanip.sim.scenarios import Obstacle, Scenario
 from quadmanip.testbench.floor_plan import FloorPlan, true_floor_plan
 from quadmanip.testbench.map_house import grid_geometry, nav_stack, run_mapping
 from quadmanip.testbench.nav_record import NavRecorder
-from quadmanip.testbench.stack import StackRun
+from quadmanip.testbench.stack import StackError, StackRun
 from scipy import ndimage
 
 __all__ = ["main", "map_scores", "random_free_poses"]
@@ -250,94 +250,106 @@ def part_nav(
         assert s.bus is not None
         rec = NavRecorder(s.bus)
         contacts = _Contacts(s)
-        for k, goal in enumerate(goals):
-            start = _gt_pose(s)
-            length, ideal = _ideal_time(plan_cm, start, goal)
-            c0 = contacts.count
-            t0 = s.now()
-            # asked 3 cm / 2 deg by its own estimate, so that the true pose is within the
-            # issue's 5 cm / 3 deg with the localisation's error on top
-            res, reason = _send_and_wait(
-                s,
-                "navigate_to",
-                m.NavigateGoal(stamp=t0, pose=np.array(goal), tolerance_xy=GOAL_TOL[0],
-                               tolerance_yaw=GOAL_TOL[1]),
-                300.0,
-            )  # fmt: skip
-            s.wait_sim(s.now() + 0.5)
-            end = _gt_pose(s)
-            err = math.hypot(end[0] - goal[0], end[1] - goal[1])
-            yerr = abs(float(wrap(end[2] - goal[2])))
-            dur = (res.result.duration if res is not None and res.result is not None
-                   else s.now() - t0)  # fmt: skip
-            row = {
-                "goal": np.round(goal, 3).tolist(),
-                "status": None if res is None else res.status,
-                "reason": reason,
-                "error_m": round(err, 4),
-                "error_deg": round(math.degrees(yerr), 2),
-                "reached": bool(
-                    res is not None
-                    and res.status == "succeeded"
-                    and err <= 0.05
-                    and yerr <= math.radians(3.0)
-                ),  # fmt: skip
-                "time_s": round(dur, 2),
-                "path_m": round(length, 2),
-                "time_ratio": round(dur / ideal, 3) if ideal > 0 else None,
-                "contacts": contacts.count - c0,
-            }
-            out["goals"].append(row)
-            print(f"  goal {k + 1}/{len(goals)}: {row}", flush=True)
-        rng = np.random.default_rng([seed, 0xA7])
-        fits = standable(plan, 0.45)
-        odom = s.bus.latest("locomotion/odometry")
-        for k in range(n_approach):
-            # back to open floor first, then a target 0.5-1.5 m ahead (+-30 deg) in odom
-            centre = (2.6, 1.6, float(rng.uniform(-math.pi, math.pi)))
-            _send_and_wait(s, "navigate_to", m.NavigateGoal(stamp=s.now(),
-                           pose=np.array(centre), tolerance_xy=0.1, tolerance_yaw=0.2), 200.0)  # fmt: skip
-            s.wait_sim(s.now() + 0.5)
-            od = odom.get()
-            o: Pose2 = (float(od.position[0]), float(od.position[1]),
-                        yaw_from_quat(od.orientation))  # fmt: skip
-            g = _gt_pose(s)
-            # where a stand pose is in the world, through the odometry at the goal
-            w_T_o = compose(g, invert(o))
-            for _ in range(100):  # a target the robot fits at (one by the sofa was drawn)
-                dist = float(rng.uniform(0.5, 1.5))
-                bearing = float(rng.uniform(-0.5, 0.5))
-                heading = o[2] + float(rng.uniform(-0.5, 0.5))
-                target_odom = (o[0] + dist * math.cos(o[2] + bearing),
-                               o[1] + dist * math.sin(o[2] + bearing))  # fmt: skip
-                want = compose(w_T_o, (target_odom[0], target_odom[1], heading))
-                (r,), (c,) = plan.geometry.to_cell(np.array([want[:2]]))
-                if fits[r, c]:
-                    break
-            t_start = s.now()
-            res, reason = _send_and_wait(
-                s, "approach",
-                m.ApproachGoal(stamp=s.now(), target=np.array(target_odom), frame="odom",
-                               standoff=0.0, heading=heading), 120.0)  # fmt: skip
-            s.wait_sim(s.now() + 0.5)
-            end = _gt_pose(s)
-            row = {
-                "distance_m": round(dist, 3),
-                "t_start": round(t_start, 3),  # sim time: to find it in the recording
-                "status": None if res is None else res.status,
-                "reason": reason,
-                "error_m": round(math.hypot(end[0] - want[0], end[1] - want[1]), 4),
-                "error_deg": round(math.degrees(abs(float(wrap(end[2] - want[2])))), 3),
-                "time_s": None
-                if res is None or res.result is None
-                else round(res.result.duration, 2),
-                # the error navigation itself saw, in the odom frame: the controller's share
-                "odom_error_m": None
-                if res is None or res.result is None
-                else round(res.result.error_xy, 4),
-            }
-            out["approach"].append(row)
-            print(f"  approach {k + 1}/{n_approach}: {row}", flush=True)
+        out["goals_planned"], out["approaches_planned"] = len(goals), n_approach
+        walking_to = None  # the goal under way, for the row of a run a fall ends
+        try:
+            for k, goal in enumerate(goals):
+                walking_to = goal
+                start = _gt_pose(s)
+                length, ideal = _ideal_time(plan_cm, start, goal)
+                c0 = contacts.count
+                t0 = s.now()
+                # asked 3 cm / 2 deg by its own estimate, so that the true pose is within the
+                # issue's 5 cm / 3 deg with the localisation's error on top
+                res, reason = _send_and_wait(
+                    s,
+                    "navigate_to",
+                    m.NavigateGoal(stamp=t0, pose=np.array(goal), tolerance_xy=GOAL_TOL[0],
+                                   tolerance_yaw=GOAL_TOL[1]),
+                    300.0,
+                )  # fmt: skip
+                s.wait_sim(s.now() + 0.5)
+                end = _gt_pose(s)
+                err = math.hypot(end[0] - goal[0], end[1] - goal[1])
+                yerr = abs(float(wrap(end[2] - goal[2])))
+                dur = (res.result.duration if res is not None and res.result is not None
+                       else s.now() - t0)  # fmt: skip
+                row = {
+                    "goal": np.round(goal, 3).tolist(),
+                    "status": None if res is None else res.status,
+                    "reason": reason,
+                    "error_m": round(err, 4),
+                    "error_deg": round(math.degrees(yerr), 2),
+                    "reached": bool(
+                        res is not None
+                        and res.status == "succeeded"
+                        and err <= 0.05
+                        and yerr <= math.radians(3.0)
+                    ),  # fmt: skip
+                    "time_s": round(dur, 2),
+                    "path_m": round(length, 2),
+                    "time_ratio": round(dur / ideal, 3) if ideal > 0 else None,
+                    "contacts": contacts.count - c0,
+                }
+                out["goals"].append(row)
+                walking_to = None
+                print(f"  goal {k + 1}/{len(goals)}: {row}", flush=True)
+            rng = np.random.default_rng([seed, 0xA7])
+            fits = standable(plan, 0.45)
+            odom = s.bus.latest("locomotion/odometry")
+            for k in range(n_approach):
+                # back to open floor first, then a target 0.5-1.5 m ahead (+-30 deg) in odom
+                centre = (2.6, 1.6, float(rng.uniform(-math.pi, math.pi)))
+                _send_and_wait(s, "navigate_to", m.NavigateGoal(stamp=s.now(),
+                               pose=np.array(centre), tolerance_xy=0.1, tolerance_yaw=0.2), 200.0)  # fmt: skip
+                s.wait_sim(s.now() + 0.5)
+                od = odom.get()
+                o: Pose2 = (float(od.position[0]), float(od.position[1]),
+                            yaw_from_quat(od.orientation))  # fmt: skip
+                g = _gt_pose(s)
+                # where a stand pose is in the world, through the odometry at the goal
+                w_T_o = compose(g, invert(o))
+                for _ in range(100):  # a target the robot fits at (one by the sofa was drawn)
+                    dist = float(rng.uniform(0.5, 1.5))
+                    bearing = float(rng.uniform(-0.5, 0.5))
+                    heading = o[2] + float(rng.uniform(-0.5, 0.5))
+                    target_odom = (o[0] + dist * math.cos(o[2] + bearing),
+                                   o[1] + dist * math.sin(o[2] + bearing))  # fmt: skip
+                    want = compose(w_T_o, (target_odom[0], target_odom[1], heading))
+                    (r,), (c,) = plan.geometry.to_cell(np.array([want[:2]]))
+                    if fits[r, c]:
+                        break
+                t_start = s.now()
+                res, reason = _send_and_wait(
+                    s, "approach",
+                    m.ApproachGoal(stamp=s.now(), target=np.array(target_odom), frame="odom",
+                                   standoff=0.0, heading=heading), 120.0)  # fmt: skip
+                s.wait_sim(s.now() + 0.5)
+                end = _gt_pose(s)
+                row = {
+                    "distance_m": round(dist, 3),
+                    "t_start": round(t_start, 3),  # sim time: to find it in the recording
+                    "status": None if res is None else res.status,
+                    "reason": reason,
+                    "error_m": round(math.hypot(end[0] - want[0], end[1] - want[1]), 4),
+                    "error_deg": round(math.degrees(abs(float(wrap(end[2] - want[2])))), 3),
+                    "time_s": None
+                    if res is None or res.result is None
+                    else round(res.result.duration, 2),
+                    # the error navigation itself saw, in the odom frame: the controller's share
+                    "odom_error_m": None
+                    if res is None or res.result is None
+                    else round(res.result.error_xy, 4),
+                }
+                out["approach"].append(row)
+                print(f"  approach {k + 1}/{n_approach}: {row}", flush=True)
+        except StackError as exc:  # the robot fell: keep what was measured, and say so
+            out["tripped"] = str(exc)
+            print(f"  stopped: {exc}", flush=True)
+            if walking_to is not None:
+                out["goals"].append({"goal": np.round(walking_to, 3).tolist(), "status": "tripped",
+                                     "reason": str(exc), "reached": False, "contacts": 0,
+                                     "time_ratio": None})  # fmt: skip
         out["contacts_examples"] = contacts.examples
         data = rec.arrays()
         if record:
@@ -521,10 +533,12 @@ def _summary(res: dict[str, Any]) -> dict[str, Any]:
         s["loc_rmse_m"] = loc.get("rmse_m")
         s["loc_max_m"] = loc.get("max_m")
         s["loc_yaw_rmse_deg"] = loc.get("yaw_rmse_deg")
-        s["nav_success"] = round(sum(r["reached"] for r in g) / max(len(g), 1), 3)
+        planned = res["nav"].get("goals_planned", len(g))  # a fall ends the run early
+        s["nav_success"] = round(sum(r["reached"] for r in g) / max(planned, len(g), 1), 3)
         ratios = [r["time_ratio"] for r in g if r["reached"] and r["time_ratio"]]
         s["nav_time_ratio_p50"] = round(float(np.median(ratios)), 3) if ratios else None
         s["collisions"] = sum(r["contacts"] for r in g)
+        s["tripped"] = res["nav"].get("tripped", "")
         a = [r["error_m"] for r in res["nav"]["approach"]]
         s["approach_err_m_p95"] = round(float(np.percentile(a, 95)), 4) if a else None
         ad = [r["error_deg"] for r in res["nav"]["approach"]]
