@@ -83,6 +83,8 @@ class ScanAnchor:
     def _fit_lines(self, pts: np.ndarray) -> _Lines:
         """The line through each return's neighbours, where they lie on one."""
         cfg = self.config
+        if len(pts) < 3:  # nothing to hold to: every match is refused
+            return _Lines(np.zeros((0, 2)), np.zeros((0, 2)), cKDTree(np.zeros((0, 2))))
         tree = cKDTree(pts)
         k = min(cfg.neighbours, len(pts))
         dist, idx = tree.query(pts, k=k, distance_upper_bound=cfg.neighbour_radius)

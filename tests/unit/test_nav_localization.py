@@ -374,3 +374,15 @@ def test_the_scan_anchor_grows_with_the_view_on_a_long_move(house):
     anchor, err = _anchored(house, truth, 3)
     assert anchor.extended >= 1 and anchor.refused <= 2, (anchor.extended, anchor.refused)
     assert err.max() < 0.006, err.max()
+
+
+def test_a_scan_anchor_on_an_empty_scan_refuses_its_matches(house):
+    """A start scan with no returns (a LiDAR blinded at the approach's start) holds
+    nothing: matches are refused and the pose is the odometry's, no exception."""
+    from quadmanip.services.navigation.scan_anchor import ScanAnchor
+
+    plan, _, mount = house
+    anchor = ScanAnchor(np.zeros((0, 2)), (1.0, 1.0, 0.0))
+    scan = scan_at(plan, mount, (1.5, 1.5, 0.0), np.random.default_rng(0)).points
+    assert not anchor.update(scan, (1.01, 1.0, 0.0)) and anchor.refused == 1
+    np.testing.assert_allclose(anchor.pose((1.2, 1.0, 0.1)), (1.2, 1.0, 0.1), atol=1e-12)
