@@ -133,41 +133,44 @@ class ScanAnchor:
             self._pending = np.zeros((0, 2))
         return True
 
+    def _pair(self, scan: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The scan at pose ``x`` paired with its nearest anchor lines: (paired points,
+        their lines' normals, signed distances along them); unpaired points are left out."""
+        lines = self._lines
+        q = transform_points((x[0], x[1], x[2]), scan)
+        dist, j = lines.tree.query(q, distance_upper_bound=self.config.pair_distance)
+        ok = np.isfinite(dist)
+        n = lines.normal[j[ok]]
+        return q[ok], n, np.einsum("ij,ij->i", n, q[ok] - lines.centre[j[ok]])
+
     def _match(self, scan: np.ndarray, guess: Pose2) -> tuple[Pose2, float, float]:
         """Robust Gauss-Newton point-to-line fit from ``guess``: (pose, fit, inliers)."""
         cfg = self.config
-        lines = self._lines
-        x = np.array(guess, dtype=float)
+        x0 = np.array(guess, dtype=float)
+        x = x0.copy()
         # one return's information is 1/huber^2 (in the same units): the prior weighs as
         # a fraction (huber / prior_sigma)^2 of one return
         prior = np.eye(3) * (cfg.huber / cfg.prior_sigma) ** 2
-        r = np.zeros(0)
         for _ in range(cfg.iterations):
-            q = transform_points((x[0], x[1], x[2]), scan)
-            dist, j = lines.tree.query(q, distance_upper_bound=cfg.pair_distance)
-            ok = np.isfinite(dist)
-            if ok.sum() < cfg.min_points:
-                return (float(x[0]), float(x[1]), float(x[2])), math.inf, float(ok.mean())
-            qo, n = q[ok], lines.normal[j[ok]]
-            r = np.einsum("ij,ij->i", n, qo - lines.centre[j[ok]])
+            qo, n, r = self._pair(scan, x)
+            if len(r) < cfg.min_points:
+                break
             # d q / d yaw about the base origin (x, y)
             dq = np.stack([-(qo[:, 1] - x[1]), qo[:, 0] - x[0]], axis=1)
             jac = np.column_stack([n[:, 0], n[:, 1], np.einsum("ij,ij->i", n, dq)])
             w = np.minimum(1.0, cfg.huber / np.maximum(np.abs(r), 1e-9))
             h = jac.T @ (jac * w[:, None]) + prior
-            g = jac.T @ (w * r) + prior @ (x - np.array(guess))
+            g = jac.T @ (w * r) + prior @ (x - x0)
             step = -np.linalg.solve(h, g)
             x = x + step
             x[2] = wrap(x[2])
             if math.hypot(step[0], step[1]) < 1e-5 and abs(step[2]) < 1e-5:
                 break
-        q = transform_points((x[0], x[1], x[2]), scan)
-        dist, j = lines.tree.query(q, distance_upper_bound=cfg.pair_distance)
-        ok = np.isfinite(dist)
-        if not ok.any():
-            return (float(x[0]), float(x[1]), float(x[2])), math.inf, 0.0
-        r = np.abs(np.einsum("ij,ij->i", lines.normal[j[ok]], q[ok] - lines.centre[j[ok]]))
-        return (float(x[0]), float(x[1]), float(wrap(x[2]))), float(r.mean()), float(ok.mean())
+        _, _, r = self._pair(scan, x)
+        pose = (float(x[0]), float(x[1]), float(wrap(x[2])))
+        if len(r) < cfg.min_points:  # too little of the scan lies on the anchor
+            return pose, math.inf, len(r) / len(scan)
+        return pose, float(np.abs(r).mean()), len(r) / len(scan)
 
     def _extend(self, pts: np.ndarray) -> None:
         """Add the returns of a matched scan (odom frame) that the anchor does not hold
