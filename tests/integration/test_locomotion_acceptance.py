@@ -165,6 +165,10 @@ def test_stand_trot_and_stop_over_zenoh(stack):
     assert drift < 0.05 * travelled + 0.03
 
 
+# long runs in `make test-all` (the default suite keeps within 30 min on CI's 2 cores):
+# standing still is covered by the trot-and-stop test over Zenoh, the doorway by
+# navigation's stack test
+@pytest.mark.slow
 def test_stand_sixty_seconds_without_drift(stack):
     t_stand = stack.stand_up()
     stack.wait_sim(t_stand + 60.0, timeout=400)
@@ -235,6 +239,7 @@ def clear_scenario() -> str:
     return "empty"
 
 
+@pytest.mark.slow
 def test_ten_metre_route_through_the_doorway(zenoh_router, spawn, bus_factory):
     """Waypoints followed with the robot's own odometry, in a scenario whose floor objects
     leave the route clear (the robot's footprint is ±0.2 m wide; objects are kept 0.45 m off)."""
