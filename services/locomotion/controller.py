@@ -128,6 +128,15 @@ class LocomotionConfig:
     # of moving over the feet's centre: that move shifted the trunk 5-18 mm after every
     # stop and kept the precise approach from ending within 1 cm.
     stop_keep_max: float = 0.03
+    # Standing nudges: a velocity command at or below these speeds while standing moves the
+    # trunk over its feet (no step), up to ``nudge_reach`` from the feet's centre and
+    # ``nudge_turn`` from the stance's yaw. A trot cannot make such small moves: a stop and
+    # go of 0.4 s at 3 cm/s moved the trunk 5-16 mm, often not the way it was told, which
+    # kept the precise approach from its last centimetre.
+    nudge_speed: float = 0.02  # m/s per axis (the trot's own deadband)
+    nudge_wz: float = 0.05  # rad/s
+    nudge_reach: float = 0.04  # m
+    nudge_turn: float = 0.035  # rad (2 degrees)
     held_mass: float = 0.0
     profile: str = "tuned"
     profiles: dict[str, Profile] = field(default_factory=default_profiles)
@@ -254,6 +263,9 @@ class LocomotionController:
         self._td_target = np.zeros((4, 3))
         self._stand_yaw = 0.0
         self._stand_offset = np.zeros(2)  # trunk - feet centre kept from a stop (world xy)
+        self._stand_turn = 0.0  # rad: the stance's yaw nudged this far (nudge_turn at most)
+        self._nudge = np.zeros(3)  # the standing nudge velocity (base frame)
+        self._nudge_time = -math.inf
         self._stop_requested = False
         self._auto_walk = True
         self.mpc_tick = 0
@@ -328,6 +340,10 @@ class LocomotionController:
             raise CommandError(f"velocity {v.tolist()} outside limits ±{bound.tolist()}{why}")
         if self.phase not in ("balance", "walk", "stopping") and self.mode != "walk":
             raise CommandError(f"velocity commands need mode stand or walk (now {self.mode})")
+        if self.phase == "balance" and self.mode != "walk" and self._is_nudge(v):
+            self._nudge = v
+            self._nudge_time = float(now)
+            return
         self.cmd_vel = v
         self.cmd_vel_time = float(now)
         if np.any(np.abs(v) > 1e-6):
@@ -339,6 +355,27 @@ class LocomotionController:
                 self.phase = "walk"
                 self._stop_requested = False
             self.mode = "walk"
+
+    def _is_nudge(self, v: np.ndarray) -> bool:
+        """A command small enough to move the standing trunk instead of trotting."""
+        cfg = self.cfg
+        small = abs(v[0]) <= cfg.nudge_speed and abs(v[1]) <= cfg.nudge_speed
+        return bool(small and abs(v[2]) <= cfg.nudge_wz)
+
+    def _apply_nudge(self, dt: float) -> None:
+        """Move the standing goal by the fresh nudge: the trunk's offset over its feet
+        (within ``nudge_reach``) and the stance's yaw (within ``nudge_turn``)."""
+        cfg = self.cfg
+        if self._t - self._nudge_time > cfg.cmd_timeout:
+            return
+        c, s = math.cos(self._stand_yaw), math.sin(self._stand_yaw)
+        vx, vy, wz = self._nudge
+        off = self._stand_offset + dt * np.array([c * vx - s * vy, s * vx + c * vy])
+        n = float(np.hypot(*off))
+        self._stand_offset = off if n <= cfg.nudge_reach else off * (cfg.nudge_reach / n)
+        turn = float(np.clip(self._stand_turn + wz * dt, -cfg.nudge_turn, cfg.nudge_turn))
+        self._stand_yaw += turn - self._stand_turn
+        self._stand_turn = turn
 
     def set_body_pose(
         self, z: float, x: float, y: float, roll: float, pitch: float, yaw: float
@@ -451,6 +488,7 @@ class LocomotionController:
         self.ref.reset(self.est.position, float(rpy[2]))
         self._stand_yaw = float(rpy[2])
         self._stand_offset = np.zeros(2)
+        self._stand_turn = 0.0
         self.body_pose = np.zeros(6)
         if self.mode == "walk":
             self.mode = "stand"
@@ -569,6 +607,7 @@ class LocomotionController:
                 self._stop_requested = False
                 self.cmd_vel = np.zeros(3)
                 self._stand_yaw = float(rpy[2])
+                self._stand_turn = 0.0
                 feet = np.mean(self.est.x[6:18].reshape(4, 3)[:, :2], axis=0)
                 off = pos[:2] - feet
                 n = float(np.hypot(*off))
@@ -584,6 +623,8 @@ class LocomotionController:
             rp_des = np.zeros(2)
         else:
             # Standing: COM shift/rotation relative to the feet's centre.
+            if self.phase == "balance":
+                self._apply_nudge(dt)
             feet_xy = np.mean(self.est.x[6:18].reshape(4, 3)[:, :2], axis=0)
             yaw0 = self._stand_yaw
             c, s = math.cos(yaw0), math.sin(yaw0)

@@ -151,6 +151,43 @@ def test_a_slow_trot_that_stops_leaves_the_trunk_where_it_stopped(v):
     assert not run.fell
 
 
+def test_a_small_velocity_while_standing_moves_the_trunk_without_a_step():
+    """The precise approach's last centimetres: commands within the trot's deadband move
+    the standing trunk over its feet (no trot, no foot moves), so 1.5 cm forward-left and
+    1 degree of turn land within millimetres, and the move stops at ``nudge_reach``."""
+    run = Run()
+    run.stand()
+    d = run.plant.data
+    feet0 = d.site_xpos[run._feet][:, :2].copy()
+    p0 = run.plant.true_position()[:2].copy()
+    yaw0 = run.ctl.last_rpy[2]
+    v = (0.015, 0.0075, 0.0175)  # for 1 s: 1.5 cm forward, 0.75 cm left, 1 degree left
+
+    def nudge(t: float) -> None:
+        if round(t / 0.002) % 10 == 0:
+            run.ctl.set_velocity(*(v if t < t0 + 1.0 else (0.0, 0.0, 0.0)), now=t)
+
+    t0 = run.plant.time
+    run.until(t0 + 2.5, nudge)
+    assert run.ctl.phase == "balance"  # it never trotted
+    assert np.abs(d.site_xpos[run._feet][:, :2] - feet0).max() < 0.003
+    c, s = math.cos(yaw0), math.sin(yaw0)
+    moved = run.plant.true_position()[:2] - p0
+    assert c * moved[0] + s * moved[1] == pytest.approx(0.015, abs=0.003)
+    assert -s * moved[0] + c * moved[1] == pytest.approx(0.0075, abs=0.003)
+    assert math.degrees(run.ctl.last_rpy[2] - yaw0) == pytest.approx(1.0, abs=0.3)
+    # held on: the trunk stops at the reach, still standing on the same feet
+    v = (0.02, 0.0, 0.0)
+    t0 = run.plant.time
+    run.until(t0 + 4.0, lambda t: run.ctl.set_velocity(*v, now=t))
+    reach = float(np.linalg.norm(run.base_minus_feet()[:2]))
+    assert reach == pytest.approx(run.ctl.cfg.nudge_reach, abs=0.01)
+    assert run.ctl.phase == "balance" and not run.fell
+    # a command above the nudge speed trots as before
+    run.until(run.plant.time + 0.3, lambda t: run.ctl.set_velocity(0.05, 0.0, 0.0, now=t))
+    assert run.ctl.phase == "walk"
+
+
 def test_crouch_and_com_shift_follow_body_pose_commands():
     run = Run()
     run.stand()
