@@ -25,14 +25,10 @@ few cm/s, and it follows a command with a lag of ~0.25 s; so the controller
   final errors 2.5-9.2 mm over 20 approaches). A robot standing inside the tolerance but
   outside the aim steps again, for at most ``patience`` seconds; then it is done where
   it stands (the steps of a trot brought to a stop are a few millimetres themselves).
-- finishes the last centimetres *standing*, by nudges: within ``nudge_range`` (and
-  ``nudge_turn``) of the goal, a standing robot is sent velocities below locomotion's
-  ``nudge_speed``, which move the trunk over its feet without a step, proportionally and
-  without a deadband. A trot cannot do this: *measured* in-process, a stop and go of
-  0.4 s at 3 cm/s moved the trunk 5-16 mm, often not the way it was told, and 2 of 20
-  approaches on seed 1 hovered at 1.9-2.5 cm for 30 s. When the nudges run out of reach
-  (the trunk ``nudge_reach`` off its feet) and the robot has not arrived within
-  ``nudge_patience``, it steps again.
+- finishes the last centimetres *standing*, by nudges (standing_nudge.py): near the
+  goal a standing robot is sent velocities within the trot's deadband, which shift its
+  trunk over its feet without a step, proportionally and without a deadband. Stepped,
+  2 of 20 approaches on seed 1 hovered 1.9-2.5 cm off for 30 s.
 """
 
 from __future__ import annotations
@@ -42,6 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from quadmanip.services.navigation.grid import Pose2, compose, invert, wrap
+from quadmanip.services.navigation.standing_nudge import NudgeConfig, StandingNudge
 
 __all__ = ["ApproachConfig", "ApproachController", "approach_pose"]
 
@@ -67,12 +64,6 @@ class ApproachConfig:
     stop_wait: float = 1.5  # s: within tolerance and not standing this long: done anyway
     aim: float = 0.5  # of the tolerance: where the approach means to stop
     patience: float = 2.0  # s standing within tolerance but not the aim: then done there
-    nudge_range: float = 0.03  # m: a standing robot this near the goal shifts its trunk
-    nudge_turn: float = 0.03  # rad: ... and this near its heading
-    nudge_speed: float = 0.018  # m/s per axis: below locomotion's nudge_speed (no step)
-    nudge_wz: float = 0.045  # rad/s: below locomotion's nudge_wz
-    nudge_gain: float = 1.5  # 1/s
-    nudge_patience: float = 3.0  # s of nudging without arriving: then step again
 
 
 def approach_pose(
@@ -91,8 +82,9 @@ def approach_pose(
 class ApproachController:
     """Holonomic proportional pose regulation with deadband- and lag-aware commands."""
 
-    def __init__(self, config: ApproachConfig | None = None):
+    def __init__(self, config: ApproachConfig | None = None, nudge: NudgeConfig | None = None):
         self.config = config or ApproachConfig()
+        self.nudge = StandingNudge(nudge)
         self.reset()
 
     def reset(self) -> None:
@@ -102,7 +94,7 @@ class ApproachController:
         self._waited = 0.0  # s standing within tolerance but outside the aim
         self._model = np.zeros(3)  # predicted actual body velocity (vx, vy, wz)
         self._last = np.zeros(3)
-        self._nudged = 0.0  # s nudging since the robot last stepped
+        self.nudge.reset()
 
     def command(
         self,
@@ -132,7 +124,7 @@ class ApproachController:
         if settle and self._settled >= cfg.settle_time:
             self._advance(np.zeros(3), dt)
             return 0.0, 0.0, 0.0, True
-        nudge = self._nudge(e, exy, standing, dt)
+        nudge = self.nudge.command(e, standing, dt)
         if nudge is not None:
             self._advance(np.zeros(3), dt)  # the trunk moves over its feet: no gait lag
             return nudge[0], nudge[1], nudge[2], False
@@ -160,24 +152,6 @@ class ApproachController:
         cmd = np.where(up, self._last + np.clip(cmd - self._last, -lim, lim), cmd)
         self._advance(cmd, dt)
         return float(cmd[0]), float(cmd[1]), float(cmd[2]), False
-
-    def _nudge(
-        self, e: np.ndarray, exy: float, standing: bool | None, dt: float
-    ) -> tuple[float, float, float] | None:
-        """The standing nudge toward the goal, or None where the robot must step (not
-        standing, too far, or the nudges have run out of reach)."""
-        cfg = self.config
-        if not standing:
-            if standing is False:
-                self._nudged = 0.0  # a step re-centres the trunk over its feet
-            return None
-        if exy > cfg.nudge_range or abs(e[2]) > cfg.nudge_turn or self._nudged > cfg.nudge_patience:
-            return None
-        self._nudged += dt
-        v = cfg.nudge_gain * e
-        over = max(abs(v[0]) / cfg.nudge_speed, abs(v[1]) / cfg.nudge_speed, 1.0)
-        wz = float(np.clip(v[2], -cfg.nudge_wz, cfg.nudge_wz))
-        return float(v[0] / over), float(v[1] / over), wz
 
     def _advance(self, cmd: np.ndarray, dt: float) -> None:
         cfg = self.config

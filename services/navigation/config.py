@@ -14,6 +14,7 @@ from quadmanip.services.navigation.odom_watch import OdomJumpConfig
 from quadmanip.services.navigation.path_follower import FollowerConfig
 from quadmanip.services.navigation.scan_anchor import AnchorConfig
 from quadmanip.services.navigation.slam import SlamConfig
+from quadmanip.services.navigation.standing_nudge import NudgeConfig
 
 __all__ = ["ExploreConfig", "NavigationConfig", "NodeConfig"]
 
@@ -72,6 +73,7 @@ class NavigationConfig:
     planner: PlannerConfig = field(default_factory=PlannerConfig)
     follower: FollowerConfig = field(default_factory=FollowerConfig)
     approach: ApproachConfig = field(default_factory=ApproachConfig)
+    nudge: NudgeConfig = field(default_factory=NudgeConfig)
     anchor: AnchorConfig = field(default_factory=AnchorConfig)
     navigator: NavigatorConfig = field(default_factory=NavigatorConfig)
     frontier: FrontierConfig = field(default_factory=FrontierConfig)

@@ -36,6 +36,7 @@ from quadmanip.services.navigation.path_follower import (
     PathFollower,
     costmap_collision_check,
 )
+from quadmanip.services.navigation.standing_nudge import NudgeConfig
 
 __all__ = ["NavStep", "Navigator", "NavigatorConfig", "path_length"]
 
@@ -106,11 +107,12 @@ class Navigator:
         config: NavigatorConfig | None = None,
         follower: FollowerConfig | None = None,
         planner: PlannerConfig | None = None,
+        nudge: NudgeConfig | None = None,
     ) -> None:
         self.config = config or NavigatorConfig()
         self.follower_config = follower or FollowerConfig()
         self.planner_config = planner or PlannerConfig()
-        self.follower = PathFollower(self.follower_config)
+        self.follower = PathFollower(self.follower_config, nudge=nudge)
         self.goal: _Goal | None = None
         self.plan_ms: list[float] = []
         self._t_last = -math.inf
@@ -207,8 +209,11 @@ class Navigator:
         self.follower.reset()
         return NavStep(0.0, 0.0, 0.0, "active", f"recovering ({g.recoveries}): {g.last_reason}")
 
-    def step(self, now: float, pose: Pose2, costmap: Costmap) -> NavStep:
-        """One control step at robot time ``now`` with the robot's map pose."""
+    def step(
+        self, now: float, pose: Pose2, costmap: Costmap, standing: bool | None = None
+    ) -> NavStep:
+        """One control step at robot time ``now`` with the robot's map pose; ``standing``:
+        whether locomotion stands (the final alignment's nudges; None: unknown)."""
         dt = min(max(now - self._t_last, 1e-3), 0.2) if self._t_last > -math.inf else None
         self._t_last = now
         g = self.goal
@@ -260,6 +265,7 @@ class Navigator:
             xy_tol=g.tol_xy,
             yaw_tol=g.tol_yaw,
             dt=dt,
+            standing=standing,
         )
         if cmd.done:
             return self._end("reached", "reached", 0.0)

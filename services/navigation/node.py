@@ -151,8 +151,8 @@ class NavigationNode(Service):
         self.base_height = 0.0
         self.lock = threading.Lock()
         self.job: _Job | None = None
-        self.navigator = Navigator(cfg.navigator, cfg.follower, cfg.planner)
-        self.approacher = ApproachController(cfg.approach)
+        self.navigator = Navigator(cfg.navigator, cfg.follower, cfg.planner, cfg.nudge)
+        self.approacher = ApproachController(cfg.approach, cfg.nudge)
         self.places: dict[str, Place] = {}
         self.slam: OnlineSlam | None = None
         self.amcl: ParticleFilter | None = None
@@ -617,7 +617,7 @@ class NavigationNode(Service):
 
     def _step_navigate(self, job: _Job, now: float, pose: Pose2) -> None:
         assert self.costmap is not None
-        st = self.navigator.step(now, pose, self.costmap)
+        st = self.navigator.step(now, pose, self.costmap, standing=self._standing())
         if st.new_path is not None:
             poses = self.navigator.path_poses()
             if poses is not None:

@@ -27,6 +27,7 @@ from quadmanip.services.navigation.path_follower import (
     costmap_collision_check,
     project_motion,
 )
+from quadmanip.services.navigation.standing_nudge import NudgeConfig
 from quadmanip.testbench.floor_plan import simulate_scan, true_floor_plan
 
 DOORWAY = (5.0, 2.0)
@@ -395,6 +396,31 @@ def test_the_last_centimetres_are_nudged_standing_not_stepped():
     assert worst[0.04][0] <= 0.3 * tol_xy, worst
     assert worst[0.0][0] > 0.5 * tol_xy, worst  # the kicks are what the nudges remove
     assert worst[0.04][1] < worst[0.0][1], worst
+
+
+def test_the_final_alignment_nudges_a_standing_robot():
+    """``navigate_to``'s last centimetres: told the robot stands 2 cm and 1.5 degrees off,
+    the follower sends a nudge (within the trot's deadband, toward the goal) where it
+    would otherwise restart the trot at its minimum speed; standing within the
+    tolerance it is done at once; out of patience it steps again."""
+    cfg = FollowerConfig()
+    goal_yaw = math.radians(1.5)
+    path = np.array([[-0.5, 0.0], [0.0, 0.0]])
+    pose = (-0.02 * math.cos(0.5), -0.02 * math.sin(0.5), 0.0)
+    tol = dict(xy_tol=0.01, yaw_tol=math.radians(1.0), dt=0.05)
+    stepped = PathFollower(cfg).command(pose, path, goal_yaw, 1.0, **tol)
+    assert stepped.mode == "final" and math.hypot(stepped.vx, stepped.vy) >= cfg.final_min_speed
+    f = PathFollower(cfg)
+    c = f.command(pose, path, goal_yaw, 1.0, standing=True, **tol)
+    nudge = NudgeConfig()
+    assert not c.done and 0.0 < max(abs(c.vx), abs(c.vy)) <= nudge.speed
+    assert math.atan2(c.vy, c.vx) == pytest.approx(0.5, abs=0.05)  # toward the goal
+    assert 0.0 < c.wz <= nudge.wz
+    for _ in range(round(nudge.patience / 0.05) + 1):
+        c = f.command(pose, path, goal_yaw, 1.0, standing=True, **tol)
+    assert math.hypot(c.vx, c.vy) > nudge.speed  # out of reach: it steps again
+    near = (-0.005, 0.0, math.radians(1.0))
+    assert PathFollower(cfg).command(near, path, goal_yaw, 1.0, standing=True, **tol).done
 
 
 def test_planner_config_is_frozen():
