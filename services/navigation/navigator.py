@@ -272,8 +272,9 @@ class Navigator:
         if cmd.blocked:
             g.last_reason = "an obstacle in the way"
             return self._start_recovery(g, now, pose, costmap)
-        # ---- progress watchdog
-        if cmd.distance_left < g.best_distance - cfg.progress_distance:
+        # ---- progress watchdog (not while the follower settles within the tolerances:
+        # a bounded wait to stand and nudges)
+        if cmd.distance_left < g.best_distance - cfg.progress_distance or cmd.mode == "settle":
             g.best_distance = cmd.distance_left
             g.t_progress = now
         elif now - g.t_progress > cfg.progress_window:

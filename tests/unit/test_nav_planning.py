@@ -419,8 +419,20 @@ def test_the_final_alignment_nudges_a_standing_robot():
     for _ in range(round(nudge.patience / 0.05) + 1):
         c = f.command(pose, path, goal_yaw, 1.0, standing=True, **tol)
     assert math.hypot(c.vx, c.vy) > nudge.speed  # out of reach: it steps again
-    near = (-0.005, 0.0, math.radians(1.0))
-    assert PathFollower(cfg).command(near, path, goal_yaw, 1.0, standing=True, **tol).done
+    # standing within the tolerance: nudged onto half of it (the aim), then done
+    f = PathFollower(cfg)
+    inside = f.command((-0.008, 0.0, goal_yaw), path, goal_yaw, 1.0, standing=True, **tol)
+    assert inside.mode == "settle" and not inside.done and 0.0 < inside.vx <= nudge.speed
+    on_aim = (-0.004, 0.0, math.radians(1.2))
+    assert f.command(on_aim, path, goal_yaw, 1.0, standing=True, **tol).done
+    # stopped within it but still stepping: it waits, standing still, at most stop_wait
+    f = PathFollower(cfg)
+    waits = [
+        f.command((-0.008, 0.0, goal_yaw), path, goal_yaw, 1.0, standing=False, **tol)
+        for _ in range(round(cfg.stop_wait / 0.05) + 1)
+    ]
+    assert all(c.vx == c.vy == c.wz == 0.0 for c in waits)
+    assert not waits[0].done and waits[-1].done
 
 
 def test_planner_config_is_frozen():
