@@ -445,3 +445,30 @@ def test_map_load_errors_are_clear(tmp_path: Path):
         load_map(yaml)
     with pytest.raises(MapFileError, match="shape"):
         save_map(tmp_path / "bad", np.zeros((3, 3), dtype=np.int8), g)
+
+
+def test_a_map_saved_in_the_floor_plan_frame_keeps_its_walls_where_they_are():
+    """``quadmanip map`` resamples the SLAM start's turn into the cells (map files hold no
+    rotation): a wall 10 m long lies on its true line within a cell's half diagonal; with
+    no turn the cells are kept as they are and only the origin moves."""
+    from quadmanip.services.navigation.grid import GridGeometry
+    from quadmanip.testbench.map_house import into_world_frame
+
+    geo = GridGeometry(0.05, 0.0, 0.0, 200, 60)
+    occ = np.zeros(geo.shape, dtype=np.int8)
+    occ[30, :] = 100  # a wall along x at y = 1.525 m in the map frame
+    same, geo0 = into_world_frame(occ, geo, (0.012, -0.007, 0.0))
+    assert np.array_equal(same, occ)
+    assert (geo0.origin_x, geo0.origin_y) == pytest.approx((0.012, -0.007))
+    t = (0.012, -0.007, math.radians(0.5))
+    out, geo_w = into_world_frame(occ, geo, t)
+    r, c = np.nonzero(out == 100)
+    pts = geo_w.cell_center(r, c)
+    # the wall's line in the world: through t + R (0, 1.525), along R (1, 0)
+    n = np.array([-math.sin(t[2]), math.cos(t[2])])
+    off = (pts - np.array(t[:2])) @ n - 1.525
+    assert len(pts) >= 190 and np.abs(off).max() <= 0.5 * 0.05 * math.sqrt(2)
+    # only shifted, as the tool saved maps before, the far end lies 8 cm off the line
+    r0, c0 = np.nonzero(occ == 100)
+    off0 = (geo0.cell_center(r0, c0) - np.array(t[:2])) @ n - 1.525
+    assert np.abs(off0).max() > 0.08
