@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 from quadmanip.common import messages as m
 from quadmanip.common.rotations import yaw_from_quat
-from quadmanip.services.navigation.grid import GridGeometry, compose, invert
+from quadmanip.services.navigation.grid import GridGeometry, compose, invert, transform_points
 from quadmanip.services.navigation.map_io import save_map
 from quadmanip.services.navigation.places import places_path_for, save_places
 from quadmanip.sim.scenarios import Scenario, get_scenario
@@ -178,10 +178,7 @@ def into_world_frame(
     )
     rows, cols = np.mgrid[0 : geo_w.height, 0 : geo_w.width]
     centres = geo_w.cell_center(rows.ravel(), cols.ravel())
-    c, s = math.cos(world_T_map[2]), math.sin(world_T_map[2])
-    rel = centres - np.array(world_T_map[:2])
-    in_map = np.stack([c * rel[:, 0] + s * rel[:, 1], -s * rel[:, 0] + c * rel[:, 1]], axis=1)
-    r, k = geometry.to_cell(in_map)
+    r, k = geometry.to_cell(transform_points(invert(world_T_map), centres))
     inside = geometry.inside(r, k)
     out = np.full(occ.size, -1, dtype=occ.dtype)
     out[inside] = occ[r[inside], k[inside]]
@@ -204,8 +201,7 @@ def fit_to_floor_plan(occupancy: np.ndarray, geometry: GridGeometry) -> tuple[fl
     dist = ndimage.distance_transform_edt(~plan.mask) * g.resolution
 
     def cost(x: np.ndarray) -> float:
-        ca, sa = math.cos(x[2]), math.sin(x[2])
-        p = pts @ np.array([[ca, sa], [-sa, ca]]) + x[:2]
+        p = transform_points((float(x[0]), float(x[1]), float(x[2])), pts)
         rr, cc = g.to_cell(p)
         ok = g.inside(rr, cc)
         d = np.full(len(p), 0.05)
