@@ -287,6 +287,14 @@ _TABLE: tuple[Topic, ...] = (
     row("locomotion", "health", m.LocomotionHealth, "event", "out", "ok/degraded/tripped + why"),
     # navigation
     row("navigation", "map", m.OccupancyGrid, "event", "out", "occupancy map (on change, 0.2 Hz)"),
+    row(
+        "navigation",
+        "surface",
+        m.OccupancyGrid,
+        "event",
+        "out",
+        "mapping: surfaces seen, 2 cm raster (with the map)",
+    ),
     row("navigation", "pose", m.MapPose, "sensor", "out", "base pose in the map + map->odom"),
     row("navigation", "path", m.Path, "event", "out", "the planned path (map frame)"),
     row("navigation", "costmap", m.OccupancyGrid, "sensor", "out", "costmap (1 Hz)"),

@@ -28,7 +28,7 @@ import numpy as np
 from quadmanip.common import messages as m
 from quadmanip.common.rotations import yaw_from_quat
 from quadmanip.services.navigation.grid import GridGeometry, compose, invert, transform_points
-from quadmanip.services.navigation.map_io import save_map
+from quadmanip.services.navigation.map_io import save_map, save_surface
 from quadmanip.services.navigation.places import places_path_for, save_places
 from quadmanip.sim.scenarios import Scenario, get_scenario
 from quadmanip.testbench.nav_record import NavRecorder
@@ -53,6 +53,7 @@ class MappingRun:
 
     def __init__(self) -> None:
         self.grid: m.OccupancyGrid | None = None
+        self.surface: m.OccupancyGrid | None = None  # the 2 cm raster of surfaces seen
         self.world_T_map: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self.status = ""
         self.reason = ""
@@ -118,6 +119,7 @@ def run_mapping(
         assert s.bus is not None
         recorder = NavRecorder(s.bus) if record else None
         maps = s.bus.latest("navigation/map")
+        surfaces = s.bus.latest("navigation/surface")
         out.world_T_map = world_T_map(s)
         client = s.actions["explore"]
         last = [""]
@@ -149,6 +151,7 @@ def run_mapping(
                 break
             time.sleep(0.1)
         out.grid = maps.get()
+        out.surface = surfaces.get()
         if recorder is not None:
             recorder.save(record)
     out.wall_s = time.monotonic() - t_wall
@@ -230,6 +233,11 @@ def save_in_world_frame(run: MappingRun, stem: Path) -> dict[str, Path]:
     assert run.grid is not None
     occ, geo = into_world_frame(np.asarray(run.grid.data), grid_geometry(run.grid), run.world_T_map)
     paths = save_map(stem, occ, geo)
+    if run.surface is not None:
+        surf, sgeo = into_world_frame(
+            np.asarray(run.surface.data), grid_geometry(run.surface), run.world_T_map
+        )
+        paths["surface"] = save_surface(stem, surf >= 65, sgeo)
     header = (
         f"Places of {stem.name}.yaml, in its map frame (the house's floor-plan frame).\n"
         "Drafted by `quadmanip map` from the house description; edit by hand as needed:\n"
@@ -241,15 +249,22 @@ def save_in_world_frame(run: MappingRun, stem: Path) -> dict[str, Path]:
 
 def register_saved(stem: Path) -> int:
     """``quadmanip map --register --out STEM``: re-save a map registered to the floor plan
-    (its places file is left as it is: places are in the floor-plan frame already)."""
-    from quadmanip.services.navigation.map_io import load_map
+    (its places file is left as it is: places are in the floor-plan frame already); its
+    surface raster, if any, is moved with it."""
+    from quadmanip.services.navigation.map_io import load_map, load_surface
 
     occ, geo = load_map(stem.with_suffix(".yaml"))
-    t = fit_to_floor_plan(occ, geo)
+    surface = load_surface(stem.with_suffix(".yaml"))
+    # the fine surface places the walls to a cell of 2 cm, the map to one of 5 cm
+    t = (fit_to_floor_plan(occ, geo) if surface is None
+         else fit_to_floor_plan(np.where(surface[0], 100, 0), surface[1]))  # fmt: skip
     print(f"{stem}: laid on the floor plan by dx={t[0] * 100:.2f} cm dy={t[1] * 100:.2f} cm "
           f"turn={math.degrees(t[2]):.3f} deg", flush=True)  # fmt: skip
     occ_w, geo_w = into_world_frame(np.asarray(occ), geo, t)
     save_map(stem, occ_w, geo_w, crop=False)
+    if surface is not None:
+        surf, sgeo = into_world_frame(np.where(surface[0], 100, 0).astype(np.int8), surface[1], t)
+        save_surface(stem, surf >= 65, sgeo)
     return 0
 
 

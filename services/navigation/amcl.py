@@ -136,6 +136,10 @@ class AmclConfig:
     """A correction larger than this (m, rad) from the particle estimate is rejected."""
     refine_min_inliers: float = 0.5
     """Fraction of the scan that must fit the map for a correction to be trusted."""
+    refine_surface_offset: float = 0.0
+    """Distance (m) from a cell centre of the fine surface raster (``surface``) to the
+    surface it stands for: 0 for the mapping's raster of returns (each cell holds returns
+    off the surface itself)."""
     pose_penalty: float = 10.0
     """Log-weight taken from a particle standing on an occupied, unknown or off-map cell."""
     # pose hints (``navigation/initial_pose``, :meth:`ParticleFilter.hint`):
@@ -194,7 +198,12 @@ class ParticleFilter:
         occupancy: np.ndarray,
         geometry: GridGeometry,
         rng: np.random.Generator | None = None,
+        surface: tuple[np.ndarray, GridGeometry] | None = None,
     ) -> None:
+        """``surface``: optionally the map's fine raster of surfaces (True where the
+        mapping saw returns, on its own finer grid; ``map_io.load_surface``). The final
+        correction then aligns the scan with it instead of with the 5 cm grid, whose
+        cells place a wall anywhere within 2.5 cm (docs/navigation.md)."""
         occupancy = np.asarray(occupancy)
         if occupancy.shape != geometry.shape:
             raise ValueError(f"occupancy shape {occupancy.shape} != grid {geometry.shape}")
@@ -212,6 +221,16 @@ class ParticleFilter:
         self._surface = (
             0.5 * geometry.resolution if config.surface_offset is None else config.surface_offset
         )
+        # the field the final correction aligns the scan with, and its surface offset
+        self._refine_field, self._refine_surface = self.field, self._surface
+        if surface is not None:
+            mask, sgeo = np.asarray(surface[0], dtype=bool), surface[1]
+            if mask.shape != sgeo.shape:
+                raise ValueError(f"surface shape {mask.shape} != its grid {sgeo.shape}")
+            if not mask.any():
+                raise ValueError("the surface raster marks no surface")
+            self._refine_field = DistanceField(mask, sgeo, config.laser_likelihood_max_dist)
+            self._refine_surface = config.refine_surface_offset
         # the distance a hit is scored with: from the obstacle surface; an unknown cell
         # reads "nothing known here" (the cap: a random reading) unless it is the far face
         # of a wall within two sigmas, where a slightly long range can legitimately end
@@ -604,8 +623,8 @@ class ParticleFilter:
             cs, sn = math.cos(x[2]), math.sin(x[2])
             wx = x[0] + cs * pts[:, 0] - sn * pts[:, 1]
             wy = x[1] + sn * pts[:, 0] + cs * pts[:, 1]
-            d, grad = self.field.distance_and_gradient(np.stack([wx, wy], axis=1))
-            r = d - self._surface
+            d, grad = self._refine_field.distance_and_gradient(np.stack([wx, wy], axis=1))
+            r = d - self._refine_surface
             inl = d < c.refine_inlier_distance
             if np.count_nonzero(inl) < 6:
                 break

@@ -31,6 +31,7 @@ class NodeConfig:
     initial_pose: tuple[float, float, float] = (0.8, 1.2, 0.0)  # x, y (m), yaw (deg) in the map
     initial_std: tuple[float, float, float] = (0.1, 0.1, 5.0)  # m, m, deg
     global_localization: bool = False
+    fine_surface: bool = True  # refine on the map's surface raster (NAME_surface.yaml) if any
     input_timeout: float = 1.0  # s without odometry (wall) or scans (robot time): "lost"
     map_period: float = 5.0  # s (wall) between map publications (and on every change)
     costmap_period: float = 1.0

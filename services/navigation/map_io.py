@@ -17,7 +17,15 @@ from pathlib import Path
 import numpy as np
 from quadmanip.services.navigation.grid import GridGeometry
 
-__all__ = ["MapFileError", "load_map", "read_map_yaml", "save_map"]
+__all__ = [
+    "MapFileError",
+    "load_map",
+    "load_surface",
+    "read_map_yaml",
+    "save_map",
+    "save_surface",
+    "surface_path_for",
+]
 
 FREE_PIXEL = 254
 OCCUPIED_PIXEL = 0
@@ -250,3 +258,33 @@ def load_map(yaml_path: Path | str) -> tuple[np.ndarray, GridGeometry]:
         occ[mid] = np.rint(99.0 * (p[mid] - free_t) / (occ_t - free_t)).astype(np.int8)
     geo = GridGeometry(resolution, origin[0], origin[1], px.shape[1], px.shape[0])
     return occ[::-1].copy(), geo
+
+
+# ------------------------------------------------------------------ the fine surface raster
+def surface_path_for(map_yaml: Path | str) -> Path:
+    """The fine surface raster that belongs to a map: ``NAME_surface.yaml`` beside
+    ``NAME.yaml`` (itself a map_server map: surface cells occupied, the rest free)."""
+    p = Path(map_yaml)
+    return p.with_name(p.stem + "_surface.yaml")
+
+
+def save_surface(map_stem: Path | str, mask: np.ndarray, geometry: GridGeometry) -> Path:
+    """Write the mapping's surface raster (True: a surface seen there; see
+    ``OnlineSlam.surface``) beside the map ``map_stem``; returns its YAML's path."""
+    mask = np.asarray(mask, dtype=bool)
+    stem = surface_path_for(Path(map_stem).with_suffix(".yaml")).with_suffix("")
+    occ = np.where(mask, 100, 0).astype(np.int8)
+    return save_map(stem, occ, geometry, crop=False, picture=False)["yaml"]
+
+
+def load_surface(map_yaml: Path | str) -> tuple[np.ndarray, GridGeometry] | None:
+    """The surface raster saved beside the map ``map_yaml`` (mask, geometry), or None when
+    the map has none (a map from elsewhere: localisation then refines on the map itself)."""
+    path = surface_path_for(map_yaml)
+    if not path.is_file():
+        return None
+    occ, geo = load_map(path)
+    mask = occ >= 65
+    if not mask.any():
+        raise MapFileError(f"{path}: marks no surface")
+    return mask, geo

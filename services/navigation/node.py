@@ -54,7 +54,7 @@ from quadmanip.services.navigation.grid import (
     transform_points,
     wrap,
 )
-from quadmanip.services.navigation.map_io import load_map
+from quadmanip.services.navigation.map_io import load_map, load_surface
 from quadmanip.services.navigation.navigator import Navigator
 from quadmanip.services.navigation.odom_watch import odometry_jumped
 from quadmanip.services.navigation.places import Place, load_places, places_path_for
@@ -131,6 +131,7 @@ class NavigationNode(Service):
     outputs = (
         Output("locomotion/cmd_vel", doc="body velocity while an action runs"),
         Output("navigation/map", doc="occupancy map"),
+        Output("navigation/surface", doc="mapping: the fine raster of surfaces seen"),
         Output("navigation/pose", doc="map pose + map->odom"),
         Output("navigation/path", doc="the planned path"),
         Output("navigation/costmap", doc="costmap"),
@@ -167,7 +168,8 @@ class NavigationNode(Service):
             pp = places_path_for(path)
             if pp.is_file():
                 self.places = load_places(pp)
-            self.amcl = ParticleFilter(cfg.amcl, self.map_grid, self.map_geo)
+            surface = load_surface(path) if nc.fine_surface else None
+            self.amcl = ParticleFilter(cfg.amcl, self.map_grid, self.map_geo, surface=surface)
             if nc.global_localization:
                 self.amcl.initialize_global()
             else:
@@ -177,7 +179,9 @@ class NavigationNode(Service):
             self.costmap = Costmap(cfg.costmap, self.map_grid, self.map_geo)
             self.static_costmap = Costmap(cfg.costmap, self.map_grid, self.map_geo)
             self.log.info("map loaded", map=str(path), places=len(self.places),
-                          cells=f"{self.map_geo.width}x{self.map_geo.height}")  # fmt: skip
+                          cells=f"{self.map_geo.width}x{self.map_geo.height}",
+                          surface="none" if surface is None else
+                          f"{surface[1].resolution:g} m, {int(surface[0].sum())} cells")  # fmt: skip
         self.map_version = 0
         self.t_costmap_build = -math.inf
         self.scan_cache = self.latest("sim/scan")
@@ -192,6 +196,7 @@ class NavigationNode(Service):
         self.hint_stamp = -math.inf  # of the last hint handled
         self.pub_vel = self.publisher("locomotion/cmd_vel")
         self.pub_map = self.publisher("navigation/map")
+        self.pub_surface = self.publisher("navigation/surface")
         self.pub_pose = self.publisher("navigation/pose")
         self.pub_path = self.publisher("navigation/path")
         self.pub_costmap = self.publisher("navigation/costmap")
@@ -504,6 +509,17 @@ class NavigationNode(Service):
                     resolution=geo.resolution,
                 )
             )
+            surface = self.slam.surface() if self.slam is not None else None
+            if surface is not None:
+                mask, sgeo = surface
+                self.pub_surface.publish(
+                    m.OccupancyGrid(
+                        stamp=now,
+                        origin=np.array([sgeo.origin_x, sgeo.origin_y, 0.0]),
+                        data=np.where(mask, 100, 0).astype(np.int8),
+                        resolution=sgeo.resolution,
+                    )
+                )
             self.published_map_version = self.map_version
             self.t_wall_map = wall
         if self.costmap is not None and wall - self.t_wall_costmap >= nc.costmap_period:

@@ -37,6 +37,7 @@ from quadmanip.services.navigation.grid import (
 from quadmanip.services.navigation.occupancy_grid import LogOddsGrid, OccupancyConfig
 from quadmanip.services.navigation.scan import ScanPoints
 from quadmanip.services.navigation.scan_matcher import MatchResult, ScanMatcher, ScanMatcherConfig
+from scipy import ndimage
 
 __all__ = ["OnlineSlam", "SlamConfig", "SlamEstimate"]
 
@@ -209,6 +210,28 @@ class OnlineSlam:
         return DistanceField(surface, sub, self.config.field_max_distance)
 
     # ------------------------------------------------------------------ views
+    def surface(self, fraction: float = 0.5) -> tuple[np.ndarray, GridGeometry] | None:
+        """The surfaces the scans saw, on the fine hit raster (``match_resolution``),
+        cropped to the returns: True where a cell holds at least ``match_min_hits`` returns
+        and ``fraction`` of the most returns of any cell within 2 cells of it. The range
+        noise spreads one wall's returns over a band 2-4 cells thick; keeping its densest
+        cells puts the band where the wall is, to a cell. Saved beside the map
+        (``quadmanip map``): the 5 cm map places a wall anywhere within its cell, the
+        localisation's final correction aligns with this instead (docs/navigation.md)."""
+        if self._hit_bounds is None:
+            return None
+        r0, r1, c0, c1 = self._hit_bounds
+        m = 2
+        r0, r1 = max(r0 - m, 0), min(r1 + m, self.hit_geometry.height)
+        c0, c1 = max(c0 - m, 0), min(c1 + m, self.hit_geometry.width)
+        hits = self.hits[r0:r1, c0:c1].astype(np.float32)
+        local = ndimage.maximum_filter(hits, size=2 * m + 1, mode="constant")
+        mask = (hits >= self.config.match_min_hits) & (hits >= fraction * local)
+        g = self.hit_geometry
+        sub = GridGeometry(g.resolution, g.origin_x + c0 * g.resolution,
+                           g.origin_y + r0 * g.resolution, c1 - c0, r1 - r0)  # fmt: skip
+        return mask, sub
+
     def occupancy(self) -> np.ndarray:
         """The map as an int8 OccupancyGrid array on ``geometry`` (-1 unknown, 0..100)."""
         return self.grid.occupancy()

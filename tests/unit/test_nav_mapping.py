@@ -472,3 +472,86 @@ def test_a_map_saved_in_the_floor_plan_frame_keeps_its_walls_where_they_are():
     r0, c0 = np.nonzero(occ == 100)
     off0 = (geo0.cell_center(r0, c0) - np.array(t[:2])) @ n - 1.525
     assert np.abs(off0).max() > 0.08
+
+
+def _room(lo=(0.01, 0.01), hi=(4.01, 3.01), res=0.005):
+    """A bare room whose walls lie on 2 cm cell centres and 5 cm cell edges of the SLAM's
+    rasters (the 5 cm map can only put them 2.5 cm off), rasterised at 5 mm."""
+    from quadmanip.testbench.floor_plan import FloorPlan
+
+    geo = GridGeometry.covering((lo[0] - 0.3, lo[1] - 0.3), (hi[0] + 0.3, hi[1] + 0.3), res)
+    xy = geo.cell_center(*np.indices(geo.shape).reshape(2, -1))
+    inside = (xy[:, 0] > lo[0]) & (xy[:, 0] < hi[0]) & (xy[:, 1] > lo[1]) & (xy[:, 1] < hi[1])
+    return FloorPlan(~inside.reshape(geo.shape), geo), lo, hi
+
+
+def test_the_surface_raster_puts_the_walls_within_millimetres_and_localises_on_them():
+    """``OnlineSlam.surface()`` (saved beside the map by ``quadmanip map``): the densest 2 cm
+    cells of the returns lie on the walls, where the 5 cm map's cells are a cell's half
+    off; the localisation's final correction aligned with them places a standing robot to
+    millimetres."""
+    from quadmanip.services.navigation.amcl import AmclConfig, ParticleFilter
+
+    plan, lo, hi = _room()
+    rng = np.random.default_rng(3)
+    slam = OnlineSlam()
+    poses = [(1.0 + 0.1 * k, 1.5 + 0.02 * k, 0.05 * k) for k in range(21)]
+    for p in poses:
+        slam.update(_scan(plan, p, rng), p)  # odometry = truth: the map frame is the world
+
+    def off_wall(pts):
+        return np.min(np.abs(np.column_stack([pts[:, 0] - lo[0], pts[:, 0] - hi[0],
+                                              pts[:, 1] - lo[1], pts[:, 1] - hi[1]])), axis=1)  # fmt: skip
+
+    mask, geo = slam.surface()
+    assert geo.resolution == pytest.approx(0.02)
+    d_surf = off_wall(geo.cell_center(*np.nonzero(mask)))
+    d_map = off_wall(slam.geometry.cell_center(*np.nonzero(slam.grid.occupied_mask())))
+    print(f"\nwall offset: surface raster ({len(d_surf)} cells) median {1e3 * np.median(d_surf):.1f}"
+          f" mm, p95 {1e3 * np.percentile(d_surf, 95):.1f} mm; 5 cm map median "
+          f"{1e3 * np.median(d_map):.1f} mm")  # fmt: skip
+    assert len(d_surf) >= 2 * (4.0 + 3.0) / 0.02 * 0.9  # every wall, one cell thick
+    assert np.median(d_surf) <= 0.005 and np.percentile(d_surf, 95) <= 0.012
+    assert np.median(d_surf) < 0.5 * np.median(d_map)
+
+    stands = [(1.3, 0.8, 0.3), (2.5, 2.2, -1.0), (3.3, 1.1, 2.5), (0.7, 2.5, 1.2), (3.6, 2.7, 0.0)]
+    errs = {}
+    for name, surface in (("surface", (mask, geo)), ("map", None)):
+        e = []
+        for k, p in enumerate(stands):
+            pf = ParticleFilter(AmclConfig(), slam.occupancy(), slam.geometry,
+                                np.random.default_rng(k), surface=surface)  # fmt: skip
+            pf.initialize(p, (0.02, 0.02, math.radians(1.0)))
+            pf.predict(p)
+            scans = np.random.default_rng(50 + k)
+            for _ in range(5):
+                pf.update(_scan(plan, p, scans))
+            e.append(_pose_error(pf.estimate()[0], p)[0])
+        errs[name] = np.array(e)
+    print("standing errors (mm):", {k: np.round(1e3 * v, 1).tolist() for k, v in errs.items()})
+    assert errs["surface"].max() <= 0.008
+    assert errs["surface"].max() < errs["map"].max()
+
+
+def test_the_surface_raster_is_saved_beside_its_map_and_read_back(tmp_path: Path):
+    from quadmanip.services.navigation.map_io import load_surface, save_surface, surface_path_for
+
+    stem = tmp_path / "house"
+    occ = np.zeros((8, 10), dtype=np.int8)
+    occ[0, :] = 100
+    save_map(stem, occ, GridGeometry(0.05, -0.2, 0.1, 10, 8))
+    assert load_surface(stem.with_suffix(".yaml")) is None  # a map without one
+    mask = np.zeros((20, 25), dtype=bool)
+    mask[3, 2:20] = True
+    mask[4:15, 7] = True
+    geo = GridGeometry(0.02, -0.213, 0.094, 25, 20)
+    path = save_surface(stem, mask, geo)
+    assert path == surface_path_for(stem.with_suffix(".yaml")) == tmp_path / "house_surface.yaml"
+    got, g = load_surface(stem.with_suffix(".yaml"))
+    np.testing.assert_array_equal(got, mask)
+    assert (g.resolution, g.origin_x, g.origin_y, g.width, g.height) == pytest.approx(
+        (0.02, -0.213, 0.094, 25, 20)
+    )
+    save_surface(stem, np.zeros_like(mask), geo)
+    with pytest.raises(MapFileError, match="no surface"):
+        load_surface(stem.with_suffix(".yaml"))
