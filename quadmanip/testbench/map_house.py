@@ -234,10 +234,8 @@ def save_in_world_frame(run: MappingRun, stem: Path) -> dict[str, Path]:
     occ, geo = into_world_frame(np.asarray(run.grid.data), grid_geometry(run.grid), run.world_T_map)
     paths = save_map(stem, occ, geo)
     if run.surface is not None:
-        surf, sgeo = into_world_frame(
-            np.asarray(run.surface.data), grid_geometry(run.surface), run.world_T_map
-        )
-        paths["surface"] = save_surface(stem, surf >= 65, sgeo)
+        surface = np.asarray(run.surface.data) >= 65, grid_geometry(run.surface)
+        paths["surface"] = _save_surface_moved(stem, surface, run.world_T_map)
     header = (
         f"Places of {stem.name}.yaml, in its map frame (the house's floor-plan frame).\n"
         "Drafted by `quadmanip map` from the house description; edit by hand as needed:\n"
@@ -257,15 +255,23 @@ def register_saved(stem: Path) -> int:
     surface = load_surface(stem.with_suffix(".yaml"))
     # the fine surface places the walls to a cell of 2 cm, the map to one of 5 cm
     t = (fit_to_floor_plan(occ, geo) if surface is None
-         else fit_to_floor_plan(np.where(surface[0], 100, 0), surface[1]))  # fmt: skip
+         else fit_to_floor_plan(surface[0].astype(np.int8) * 100, surface[1]))  # fmt: skip
     print(f"{stem}: laid on the floor plan by dx={t[0] * 100:.2f} cm dy={t[1] * 100:.2f} cm "
           f"turn={math.degrees(t[2]):.3f} deg", flush=True)  # fmt: skip
     occ_w, geo_w = into_world_frame(np.asarray(occ), geo, t)
     save_map(stem, occ_w, geo_w, crop=False)
     if surface is not None:
-        surf, sgeo = into_world_frame(np.where(surface[0], 100, 0).astype(np.int8), surface[1], t)
-        save_surface(stem, surf >= 65, sgeo)
+        _save_surface_moved(stem, surface, t)
     return 0
+
+
+def _save_surface_moved(
+    stem: Path, surface: tuple[np.ndarray, GridGeometry], t: tuple[float, float, float]
+) -> Path:
+    """Save a surface raster (mask, geometry) beside the map ``stem``, moved by ``t`` as
+    :func:`into_world_frame` moves the map."""
+    occ, geo = into_world_frame(surface[0].astype(np.int8) * 100, surface[1], t)
+    return save_surface(stem, occ >= 65, geo)
 
 
 def main(argv: list[str] | None = None) -> int:
