@@ -26,7 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from quadmanip.common.rotations import wrap_angle, yaw_from_quat
+from quadmanip.common.rotations import rot_z, wrap_angle, yaw_from_quat
 
 
 @dataclass(frozen=True)
@@ -177,8 +177,14 @@ class ComReference:
         yaw = float(rpy[2])
         yaw_des = yaw + float(wrap_angle(self.yaw_target - yaw))  # unwrap around the current yaw
         pose = np.array([position[0], position[1], position[2], rpy[0], rpy[1], yaw])
+        # The roll/pitch/yaw axes plan Euler angles, so they start from Euler rates, and the
+        # MPC's ω reference is in the world frame: Θ̇ = Rz(ψ)ᵀ ω both ways (the MPC's own
+        # model). Handing it the world ω as if it were Euler rates tracked roll as pitch
+        # when facing ±90°: a robot standing still at 90° rolled over in 10 s (measured).
+        rz = rot_z(yaw)
+        euler_rate = rz.T @ np.asarray(omega_world, dtype=float)
         vel = np.array(
-            [velocity[0], velocity[1], velocity[2], omega_world[0], omega_world[1], omega_world[2]]
+            [velocity[0], velocity[1], velocity[2], euler_rate[0], euler_rate[1], euler_rate[2]]
         )
         desired = np.array(
             [
@@ -210,6 +216,9 @@ class ComReference:
         x_ref = np.zeros((horizon, 12))
         x_ref[:, 0:3] = pp[:, 3:6]
         x_ref[:, 3:6] = pp[:, 0:3]
-        x_ref[:, 6:9] = pv[:, 3:6]
+        c, s = np.cos(pp[:, 5]), np.sin(pp[:, 5])
+        x_ref[:, 6] = c * pv[:, 3] - s * pv[:, 4]
+        x_ref[:, 7] = s * pv[:, 3] + c * pv[:, 4]
+        x_ref[:, 8] = pv[:, 5]
         x_ref[:, 9:12] = pv[:, 0:3]
         return x_ref
