@@ -76,6 +76,26 @@ def _edge_costs(costmap: Costmap, config: PlannerConfig) -> tuple[np.ndarray, np
     return passable, factor
 
 
+def path_cost(costmap: Costmap, path: np.ndarray, config: PlannerConfig) -> float:
+    """What the planner minimises, for a given polyline (N, 2) on ``costmap``: each
+    segment's length times the mean of its ends' cost factors (``_edge_costs``). Lets a
+    navigator compare the path it follows with a fresh plan on the same terms."""
+    if len(path) < 2:
+        return 0.0
+    step = 0.5 * costmap.geometry.resolution
+    seg = np.diff(path, axis=0)
+    n = np.maximum(np.ceil(np.hypot(*seg.T) / step).astype(np.int64), 1)
+    # sample each segment every half cell so that a short cut through a costly zone counts
+    k = np.repeat(np.arange(len(seg)), n)
+    t = (np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n) + 0.5) / n[k]
+    pts = path[:-1][k] + seg[k] * t[:, None]
+    _, factor = _edge_costs(costmap, config)
+    rows, cols = costmap.geometry.to_cell(pts)
+    h, w = costmap.geometry.shape
+    f = factor[np.clip(rows, 0, h - 1), np.clip(cols, 0, w - 1)]
+    return float(np.sum(np.hypot(*seg[k].T) / n[k] * f))
+
+
 def _graph(costmap: Costmap, config: PlannerConfig) -> tuple[csr_matrix, np.ndarray]:
     """The cached CSR graph of the costmap (rebuilt when the costmap's version moves)."""
     key = (costmap.version, config.cost_weight, config.unknown_cost)

@@ -28,6 +28,7 @@ from quadmanip.services.navigation.global_planner import (
     PlannerConfig,
     PlanResult,
     path_headings,
+    path_cost,
     plan_path,
 )
 from quadmanip.services.navigation.grid import Pose2, wrap
@@ -58,6 +59,9 @@ class NavigatorConfig:
     path_check_ahead: float = 2.0  # m of path ahead checked for new obstacles
     escape_speed: float = 0.12  # m/s: stepping out of the inscribed zone, away from obstacles
     escape_time: float = 4.0  # s at most per escape
+    # m: a periodic re-plan replaces a free path only when this much shorter (a near-equal
+    # route around a table, re-chosen each second, turned the robot back and forth)
+    switch_margin: float = 0.3
 
 
 @dataclass(frozen=True)
@@ -78,6 +82,13 @@ class NavStep:
 def path_length(path: np.ndarray) -> float:
     """Length (m) of a polyline (N, 2)."""
     return float(np.sum(np.hypot(*np.diff(path, axis=0).T))) if len(path) > 1 else 0.0
+
+
+def remaining_path(path: np.ndarray, pose: Pose2) -> np.ndarray:
+    """What is left of ``path`` from ``pose``: from the pose to its nearest vertex, then
+    along the rest."""
+    d = np.hypot(*(path - np.asarray(pose[:2])).T)
+    return np.vstack([np.asarray(pose[:2], dtype=float)[None], path[int(np.argmin(d)) :]])
 
 
 @dataclass
@@ -168,6 +179,9 @@ class Navigator:
             g.last_reason = res.reason
         return res
 
+    def _cost(self, path: np.ndarray, costmap: Costmap) -> float:
+        return path_cost(costmap, path, self.planner_config)
+
     def _path_blocked(self, g: _Goal, pose: Pose2, costmap: Costmap) -> bool:
         if g.path is None or len(g.path) < 2:
             return False
@@ -241,11 +255,9 @@ class Navigator:
             return esc
         new_path = None
         # ---- (re)plan
-        if (
-            g.path is None
-            or now - g.t_plan >= cfg.replan_period
-            or self._path_blocked(g, pose, costmap)
-        ):
+        blocked = self._path_blocked(g, pose, costmap)
+        if g.path is None or now - g.t_plan >= cfg.replan_period or blocked:
+            kept = None if blocked else g.path
             res = self._plan(g, now, pose, costmap)
             if not res.ok:
                 g.path = None
@@ -253,7 +265,12 @@ class Navigator:
                     # what the LiDAR now sees covers the goal: backing up will not help
                     return self._end("blocked", f"blocked: {res.reason}")
                 return self._start_recovery(g, now, pose, costmap)
-            new_path = res.path
+            if kept is not None and self._cost(res.path, costmap) > (
+                self._cost(remaining_path(kept, pose), costmap) - cfg.switch_margin
+            ):
+                g.path = kept  # still free and about as cheap: keep going the same way
+            else:
+                new_path = res.path
         assert g.path is not None
         clearance = float(costmap.clearance(np.array([pose[:2]]))[0])
         self.follower.collision = costmap_collision_check(costmap)

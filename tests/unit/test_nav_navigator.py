@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 from quadmanip.services.navigation.costmap import Costmap, CostmapConfig
-from quadmanip.services.navigation.grid import Pose2, compose, transform_points
+from quadmanip.services.navigation.grid import GridGeometry, Pose2, compose, transform_points
 from quadmanip.services.navigation.navigator import Navigator
 from quadmanip.services.navigation.scan import lidar_mount, scan_points
 from quadmanip.testbench.floor_plan import FloorPlan, simulate_scan, true_floor_plan
@@ -133,3 +133,55 @@ def test_a_robot_standing_too_close_to_a_wall_steps_out_and_goes(plan):
     state, reason, pose, _, touching = _run(plan, plan.mask, (2.5, 1.8, 0.0), start=start)
     assert state == "reached", reason
     assert touching == 0
+
+
+def _pillar_room() -> tuple[Costmap, FloorPlan]:
+    """A 6 x 4 m room with a 1 m pillar in its middle: two equal ways past it."""
+    geo = GridGeometry.covering((0.0, 0.0), (6.0, 4.0), 0.05)
+    mask = np.zeros(geo.shape, dtype=bool)
+    mask[[0, -1], :] = True
+    mask[:, [0, -1]] = True
+    room = _with_box(FloorPlan(mask, geo), (2.5, 1.5), (3.5, 2.5))
+    return Costmap(CostmapConfig(), _occupancy(room.mask), geo), room
+
+
+def _side(path: np.ndarray) -> float:
+    """+1 when the path passes the pillar above its centre line (y = 2), -1 below."""
+    mid = path[np.argmin(np.abs(path[:, 0] - 3.0))]
+    return float(np.sign(mid[1] - 2.0))
+
+
+def _route(nav: Navigator, t: float, pose: Pose2, cm: Costmap) -> tuple[float, bool]:
+    """(side of the route the navigator follows after a step at ``t``, whether it changed)."""
+    st = nav.step(t, pose, cm)
+    assert st.state == "active", st.reason
+    return _side(nav.goal.path), st.new_path is not None
+
+
+def test_a_periodic_replan_keeps_a_free_route_unless_another_is_much_cheaper():
+    cm, room = _pillar_room()
+    goal = (5.2, 2.0, 0.0)
+    above, below = (0.8, 2.5, 0.0), (0.8, 2.4, 0.0)
+    # planned afresh, 10 cm make the difference between the two ways past the pillar (an
+    # 8-connected grid prices both ways nearly alike; the shortcut paths differ more)
+    fresh = [Navigator(), Navigator()]
+    for n, p in zip(fresh, (above, below), strict=True):
+        n.start(goal, 0.0, p, cm)
+    assert [_route(n, 0.0, p, cm)[0] for n, p in zip(fresh, (above, below), strict=True)] == [
+        1.0,
+        -1.0,
+    ]
+    nav = Navigator()
+    assert nav.start(goal, 0.0, above, cm) == ""
+    assert _route(nav, 0.0, above, cm) == (1.0, True)
+    # the 1 s re-plans from the other pose keep the route: no turning back and forth
+    assert _route(nav, 1.1, below, cm) == (1.0, False)
+    assert _route(nav, 2.2, above, cm) == (1.0, False)
+    # an obstacle across the route ahead: the other way at once
+    walled = _with_box(room, (2.0, 2.3), (2.2, 4.0))
+    cm_walled = Costmap(CostmapConfig(), _occupancy(walled.mask), room.geometry)
+    assert _route(nav, 2.3, below, cm_walled) == (-1.0, True)
+    # the obstacle gone and the robot well above the centre line: the upper way is much
+    # cheaper now, and the periodic re-plan takes it
+    high = (0.8, 3.2, 0.0)
+    assert _route(nav, 3.4, high, cm) == (1.0, True)
