@@ -27,8 +27,8 @@ from quadmanip.services.navigation.costmap import INSCRIBED, LETHAL, Costmap
 from quadmanip.services.navigation.global_planner import (
     PlannerConfig,
     PlanResult,
-    path_headings,
     path_cost,
+    path_headings,
     plan_path,
 )
 from quadmanip.services.navigation.grid import Pose2, wrap
