@@ -16,6 +16,10 @@ Corrections to the paper (OCR / logic):
   with no commanded velocity can still correct a small offset.
 * The target may not run further than ``max_lead`` ahead of the estimated pose (a robot
   that is held back must not build up a large position error that it later sprints for).
+* Algorithm 7 plans roll, pitch and yaw as independent axes (Euler angles), while the MPC's
+  state holds the world angular velocity ω: the plan starts from the Euler rates Rz(ψ)ᵀ ω
+  and hands the MPC Rz(ψ) times its planned rates (the MPC's own small-angle model). Mixing
+  the two is harmless facing 0° and tracks roll as pitch facing ±90°.
 * While walking forward/backward, VEL_LIMIT gets a catch-up allowance of ``catch_up_gain`` ×
   the target's lead along the heading (at most ``catch_up_max``): without it the plan, which
   starts from the current velocity, settles about 10 % below the commanded speed.
