@@ -31,7 +31,10 @@ from quadmanip.sim.world.objects import load_catalogue
 from quadmanip.testbench.manipulation_scenes import TABLE_HEIGHT, grasp_from_poses
 from quadmanip.testbench.stack import ActionOutcome, StackRun
 
-pytestmark = pytest.mark.integration
+# Slow (``make test-all``, ~2 min): its steps run in the default suite elsewhere - drawers in
+# test_manipulation_physics.py, table and floor grasps and the tray place in
+# test_manipulation_acceptance.py and the tidy-up over the full stack (test_tidyup.py).
+pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
 # in front of the top drawer: handle (9.46, 1.5) minus arm mount (0.06) minus 0.44 m
 START = (8.96, 1.5, 0.0)
