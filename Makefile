@@ -42,7 +42,7 @@ $(UNITREE_STAMP): $(STAMP)
 	$(PY) -m pip install -q --no-deps unitree-sdk2py-dimos==1.0.3
 	@touch $(UNITREE_STAMP)
 
-# A short tidy-up in the living room (two objects, drawers shut, ~8 min on 2 cores: 457 s wall from a fresh clone on 2026-12-02).
+# A short tidy-up in the living room (two objects, drawers shut): 7-10 min on 2 cores (428 s wall on 2026-12-03 evening, 608 s on a slower night).
 DEMO_ARGS ?= --scenario short-20 --json demo-output/tidyup.json --rerun demo-output/tidyup.rrd \
 	--film demo-output/film --set behavior.drawers.places=[] --set 'behavior.task.zones=["living_floor","living_table"]'
 
