@@ -19,7 +19,7 @@ from quadmanip.services.navigation.costmap import (
     Costmap,
     CostmapConfig,
 )
-from quadmanip.services.navigation.global_planner import PlannerConfig, plan_path
+from quadmanip.services.navigation.global_planner import PlannerConfig, path_cost, plan_path
 from quadmanip.services.navigation.grid import compose, wrap
 from quadmanip.services.navigation.path_follower import (
     FollowerConfig,
@@ -124,6 +124,25 @@ def test_plan_through_the_doorway(costmap):
     via = math.dist(START, DOORWAY) + math.dist(DOORWAY, KITCHEN)
     assert r.length <= 1.15 * via
     assert len(r.headings) == len(r.path)
+
+
+def test_path_cost_is_the_length_in_the_open_and_more_near_obstacles(costmap):
+    cfg = PlannerConfig()
+    r = plan_path(costmap, START, KITCHEN)
+    cost = path_cost(costmap, r.path, cfg)
+    # every cell costs at least its length (factor 1), at most 1 + cost_weight
+    assert r.length <= cost <= (1.0 + cfg.cost_weight) * r.length
+    # the same path's costs add up when it is cut in two
+    k = len(r.path) // 2
+    halves = path_cost(costmap, r.path[: k + 1], cfg) + path_cost(costmap, r.path[k:], cfg)
+    assert halves == pytest.approx(cost, rel=1e-3)
+    # along a wall (20 cm from the south wall, inside its inflation) it costs more than
+    # its length; in the middle of the room, its length
+    along = np.array([[1.0, 0.2], [3.0, 0.2]])
+    middle = np.array([[1.0, 1.2], [3.0, 1.2]])
+    assert path_cost(costmap, along, cfg) > 2.0 * 1.5
+    assert path_cost(costmap, middle, cfg) == pytest.approx(2.0, rel=0.05)
+    assert path_cost(costmap, along[:1], cfg) == 0.0
 
 
 def test_plan_refusals(plan, costmap):
