@@ -92,7 +92,7 @@ def test_stands_up_from_lying_and_holds_still():
     assert run.ctl.debug.foot_forces[:, 2].sum() == pytest.approx(mass * 9.81, rel=0.05)
 
 
-@pytest.mark.parametrize("heading_deg", [90.0, -90.0, 180.0])
+@pytest.mark.parametrize("heading_deg", [90.0, 180.0])
 def test_stands_level_whatever_its_heading(heading_deg: float):
     """The MPC's angular reference is in the world frame and the plan's in Euler rates: a
     mix-up of the two rolled a robot standing at 90° over within 10 s (a grasp trial in
