@@ -1775,3 +1775,25 @@ def test_standing_up_trusts_no_health_from_before_the_restart() -> None:
     node.watch.liveliness("locomotion", False, time.monotonic())
     out = robot.stand_up()
     assert not out.ok and out.interrupted == "locomotion"
+
+
+def test_a_table_object_by_a_leg_is_approached_turned_toward_the_tables_middle() -> None:
+    # paper-5: a mug 13 cm in from the kitchen table's end; square to the table the
+    # stance met the table's leg, four times, and the mug was given up
+    things = _things()
+    things[2] = Thing("bowl", 3, (2.1, 3.2, 0.43), on_table=True)  # by the west end
+    house = FakeHouse(things)
+    house.furniture = [(2.0, 3.1)]  # the living table's south-west leg
+    report = _task(house).run()
+    assert _record(report, "bowl").placed
+    table = PLACES["living_table"]
+    heads = [a[2] for what, a in house.calls if what == "approach" and a[0] == (2.1, 3.2)]
+    assert heads[0] == pytest.approx(table.stand[2])  # square first
+    ok = heads[-1]
+    assert ok != pytest.approx(table.stand[2])
+    # the stance it took lies toward the table's middle from the object, clear of the leg
+    stance = (
+        2.1 - CFG.task.probe_standoff * math.cos(ok),
+        3.2 - CFG.task.probe_standoff * math.sin(ok),
+    )
+    assert stance[0] > 2.1 and math.dist(stance, (2.0, 3.1)) >= 0.35
