@@ -89,16 +89,28 @@ def path_cost(costmap: Costmap, path: np.ndarray, config: PlannerConfig) -> floa
     k = np.repeat(np.arange(len(seg)), n)
     t = (np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n) + 0.5) / n[k]
     pts = path[:-1][k] + seg[k] * t[:, None]
-    _, factor = _edge_costs(costmap, config)
+    _, factor = _cached_edge_costs(costmap, config)
     rows, cols = costmap.geometry.to_cell(pts)
     h, w = costmap.geometry.shape
     f = factor[np.clip(rows, 0, h - 1), np.clip(cols, 0, w - 1)]
     return float(np.sum(np.hypot(*seg[k].T) / n[k] * f))
 
 
+def _cache_key(costmap: Costmap, config: PlannerConfig) -> tuple[int, float, int]:
+    return (costmap.version, config.cost_weight, config.unknown_cost)
+
+
+def _cached_edge_costs(costmap: Costmap, config: PlannerConfig) -> tuple[np.ndarray, np.ndarray]:
+    """``_edge_costs`` of the graph last built for this costmap, if it is still current."""
+    hit = _graph_cache.get(costmap)
+    if hit is not None and hit[0] == _cache_key(costmap, config):
+        return hit[2], hit[3]
+    return _edge_costs(costmap, config)
+
+
 def _graph(costmap: Costmap, config: PlannerConfig) -> tuple[csr_matrix, np.ndarray]:
     """The cached CSR graph of the costmap (rebuilt when the costmap's version moves)."""
-    key = (costmap.version, config.cost_weight, config.unknown_cost)
+    key = _cache_key(costmap, config)
     hit = _graph_cache.get(costmap)
     if hit is not None and hit[0] == key:
         return hit[1], hit[2]
@@ -119,7 +131,7 @@ def _graph(costmap: Costmap, config: PlannerConfig) -> tuple[csr_matrix, np.ndar
     graph = csr_matrix(
         (np.concatenate(wt), (np.concatenate(src), np.concatenate(dst))), shape=(h * w, h * w)
     )
-    _graph_cache[costmap] = (key, graph, passable)
+    _graph_cache[costmap] = (key, graph, passable, factor)
     return graph, passable
 
 
