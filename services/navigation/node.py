@@ -292,9 +292,11 @@ class NavigationNode(Service):
             job.final_pose = pose
         job.outcome, job.reason = outcome, reason
         self.navigator.cancel()
-        self._stop_robot()
         with self.lock:
+            # the stop after any command for this job: a control tick that read the job
+            # before it ended cannot command the robot after the stop (``_send``)
             self.job = None
+            self._stop_robot()
         extra = {}
         if job.anchor is not None:
             extra = {"anchor_matches": job.anchor.matches, "anchor_refused": job.anchor.refused}
@@ -304,8 +306,12 @@ class NavigationNode(Service):
     def _stop_robot(self) -> None:
         self.pub_vel.publish(m.BodyVelocityCommand(stamp=self._now(), vx=0.0, vy=0.0, wz=0.0))
 
-    def _send(self, vx: float, vy: float, wz: float) -> None:
-        self.pub_vel.publish(m.BodyVelocityCommand(stamp=self._now(), vx=vx, vy=vy, wz=wz))
+    def _send(self, job: _Job, vx: float, vy: float, wz: float) -> None:
+        """Command the robot for ``job``, unless it has ended meanwhile (another thread's
+        ``_finish`` for lost inputs: a stale command after its stop kept the robot walking)."""
+        with self.lock:
+            if self.job is job:
+                self.pub_vel.publish(m.BodyVelocityCommand(stamp=self._now(), vx=vx, vy=vy, wz=wz))
 
     # ------------------------------------------------------------------ perception of self
     def _scan_points(self, scan: m.LaserScan) -> ScanPoints:
@@ -639,7 +645,7 @@ class NavigationNode(Service):
             if poses is not None:
                 self.pub_path.publish(m.Path(stamp=now, poses=poses))
         if st.state == "active":
-            self._send(st.vx, st.vy, st.wz)
+            self._send(job, st.vx, st.vy, st.wz)
             if math.isfinite(st.distance_left):
                 job.progress = 1.0 - st.distance_left / job.total
                 job.text = f"{st.distance_left:.2f} m left ({st.reason})"
@@ -672,7 +678,7 @@ class NavigationNode(Service):
         if self._too_close(vx, vy):
             self._finish(job, "blocked", "blocked: an obstacle touches the footprint", odom)
             return
-        self._send(vx, vy, wz)
+        self._send(job, vx, vy, wz)
         err = math.hypot(job.target[0] - odom[0], job.target[1] - odom[1])
         job.progress = 1.0 - err / job.total
         job.text = f"{err * 100:.1f} cm, {math.degrees(wrap(job.target[2] - odom[2])):.1f} deg left"
@@ -713,7 +719,7 @@ class NavigationNode(Service):
             if st.new_path is not None and (poses := self.navigator.path_poses()) is not None:
                 self.pub_path.publish(m.Path(stamp=now, poses=poses))
             if st.state == "active":
-                self._send(st.vx, st.vy, st.wz)
+                self._send(job, st.vx, st.vy, st.wz)
                 return
             self.log.info("frontier goal ended", state=st.state, reason=st.reason)
             # unreachable, or reached and still open (it cannot be seen from the nearest
