@@ -112,6 +112,10 @@ __all__ = [
 LATERAL = "lateral_out_of_range"
 TOO_CLOSE = ("too_close", "self_collision")
 TOO_FAR = "too_far"
+#: Manipulation's refusals and failures that say what the fingers hold: a place that
+#: ended with the object still in them, a grasp asked for while holding one.
+STUCK = "object_stuck"
+ALREADY_HOLDING = "already_holding"
 
 
 # ------------------------------------------------------------------ what the robot knows
@@ -561,6 +565,9 @@ class TidyTask:
         # until perception sees it somewhere else
         self.stale: dict[int, Point3] = {}
         self.picked_from: Point3 | None = None  # where the held object was grasped
+        # the object the task last let go of (placed or dropped): the one still in the
+        # fingers when a grasp is refused as already_holding
+        self.last_released: ObjectRecord | None = None
         # restarts: the outages already dealt with; the life of perception's track ids
         self._handled: dict[str, int] = {}
         self.track_epoch = 0
@@ -1555,6 +1562,18 @@ class TidyTask:
             self.picked_from = rec.position
             self.posture = ""
             return Step.CARRY
+        if ALREADY_HOLDING in out.reason:
+            # what the task last took for let go is still in the fingers (not this object's
+            # failure): set it down short of this object, where the search finds it again
+            # (the spot the put-down uses, ``probe_standoff`` ahead, lies
+            # ``relook_standoff - probe_standoff`` short of it), then this one again
+            self._still_held()
+            self._posture(self.cfg.walk_posture)
+            self.robot.approach(
+                (plan.position_map[0], plan.position_map[1]), self.cfg.relook_standoff, None
+            )
+            self._put_down()
+            return Step.APPROACH
         if not out.rejected:  # a failed grasp leaves the arm wherever it stopped
             self.posture = ""
         if self._fail(Step.GRASP, f"grasp: {out.reason}"):
@@ -1649,6 +1668,8 @@ class TidyTask:
             if out.ok:
                 self.posture = ""
                 return Step.VERIFY
+            if STUCK in out.reason:
+                continue  # still in the fingers, above the region: open there once more
             reach = [r for r in (TOO_FAR, *TOO_CLOSE) if r in out.reason]
             if not out.rejected or not reach:
                 break
@@ -1657,11 +1678,34 @@ class TidyTask:
             step = -self.cfg.place_step if reach[0] == TOO_FAR else self.cfg.place_step
             self.robot.approach((point[0], point[1]), max(now_dist + step, 0.1), heading, True)
         self.posture = ""
-        # it let go somewhere other than asked (or manipulation, restarted, lost the grip)
-        if self.robot.holding() is False or (out.rejected and NOT_HOLDING in out.reason):
+        # it let go somewhere other than asked (or manipulation, restarted, lost the grip);
+        # the grip state may trail the result (paper-5: read 2 ms before "holding" came,
+        # a stuck soup can counted as let go and rode along to the next grasp)
+        if STUCK not in out.reason:
+            self.robot.wait(self.cfg.let_go_wait)
+        if (STUCK not in out.reason and self.robot.holding() is False) or (
+            out.rejected and NOT_HOLDING in out.reason
+        ):
             self._dropped(f"place: {out.reason}; let go elsewhere", Step.PLACE)
             return Step.GO_TO_VIEWPOINT
         return self._give_up_or(Step.PLACE, f"place: {out.reason}", Step.PLACE)
+
+    def _still_held(self) -> None:
+        """The object last let go of is in the fingers after all: not placed (or dropped
+        where the task thought), to be found and taken up again once set down."""
+        rec = self.last_released
+        if rec is None:
+            return
+        with self._lock:
+            rec.placed = False
+            rec.dropped = True
+            rec.failures.append(
+                Failure(
+                    Step.VERIFY.value, "still in the gripper at the next grasp", self.robot.now()
+                )
+            )
+        self.done_tracks.discard(rec.track_id)
+        self.last_released = None
 
     def _dropped(self, why: str, step: Step, record: bool = True) -> None:
         """The held object fell: record it (unless ``record`` is False: the caller did),
@@ -1671,6 +1715,7 @@ class TidyTask:
         assert rec is not None
         with self._lock:
             rec.dropped = True
+        self.last_released = rec
         if rec.track_epoch == self.track_epoch:
             for obj in self.robot.objects():
                 if obj.track_id == rec.track_id:
@@ -1731,6 +1776,7 @@ class TidyTask:
             rec.placed = True
             rec.release_seen = seen
             rec.position = point
+        self.last_released = rec
         self._posture(self.cfg.walk_posture)
         self.target = None
         # straight to the next object the memory holds (the nearest): a walk back to the

@@ -382,6 +382,12 @@ class Executive:
             held_across = cfg.postures[request.posture].held_across
             return PostureMove(self.geom, cfg, self.postures[request.posture], held_across, **kw)
         if isinstance(request, GraspRequest):
+            if self.monitor.holding:
+                # the pre-grasp opening would drop it wherever the arm is (paper-5: a soup
+                # can left in the fingers was carried to the marker's box)
+                raise GraspRejected(
+                    "already_holding", "the gripper holds an object: place or put it down first"
+                )
             force = grasp_force(cfg.gripper, request.mass)
             return GraspPrimitive(self.geom, cfg, self._plan_grasp(request), force=force, **kw)
         if isinstance(request, PlaceRequest):

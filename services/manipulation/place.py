@@ -6,7 +6,11 @@ grasp). Sequence: moveCOM sideways so the point lies in the arm plane; joint mov
 transit pose ``transit_clearance`` above the release pose; straight line down to the
 release pose (object bottom ``place_release_z`` above the rim); open; straight line up
 ``retract_height``; verify empty by closing the fingers - they must meet (a stuck object
-stalls them); restore the body pose.
+stalls them); restore the body pose. An object the check closes on may only stand between
+the open fingers (it landed upright, or leaning on a wall, with its top still between
+them): the fingers open again, the tool rises straight up ``retract_height`` more where it
+can, and a second check decides (paper-5: a soup can, re-gripped by the check in the tray,
+was carried on as "let go" and released later in the pencil case).
 """
 
 from __future__ import annotations
@@ -162,6 +166,24 @@ class PlacePrimitive(Primitive):
         self.stage("place: verify empty", 0.9)
         yield from self.close_gripper()
         if self.monitor.state is GripState.HOLDING:
+            # it may stand between the fingers rather than hang in them: open, rise, again
+            self.stage("place: clear the fingers", 0.92)
+            yield from self.open_gripper(settle=0.3)
+            yield from self._rise(self.cfg.grasp.retract_height)
+            yield from self.close_gripper()
+        if self.monitor.state is GripState.HOLDING:
             raise PrimitiveFailed("object_stuck: the fingers still hold something after release")
         yield from self.open_gripper()
         yield from self.move_body(0.0, 0.0, 0.0)
+
+    def _rise(self, height: float) -> Script:
+        """The tool straight up by ``height``, or by as much of it as the arm reaches."""
+        obs = self._last_obs
+        assert obs is not None
+        tcp = fk_tcp(self.geom, obs.q_arm)
+        here = ArmTarget(tcp.x, tcp.z, tcp.pitch, float(obs.q_arm[3]))
+        for up in (height, height / 2):
+            goal = ArmTarget(here.x, here.z + up, here.pitch, here.roll)
+            if not _reachable(self.geom, _line(here, goal, 4), obs.q_arm, self.cfg.primitive):
+                yield from self.line_to(goal)
+                return

@@ -129,6 +129,11 @@ class FakeHouse:
         self.drops = dict(drop_while_carrying or {})
         self.drop_at_the_end = drop_at_the_end  # at the walk's goal, not half way
         self.sticky = dict(sticky or {})  # places that "succeed" but keep the object
+        # places that fail "object_stuck" (the fingers closed on it again); the grip
+        # state, as the payload message, reads "let go" until grip_lag s after such a result
+        self.stuck: dict[str, int] = {}
+        self.grip_lag = 0.0
+        self.stale_grip_until = -1.0
         self.walk_s = seconds_per_walk
         self.localised_ok = localised
         self.t = 0.0
@@ -333,6 +338,8 @@ class FakeHouse:
     def holding(self) -> bool | None:
         if not self.grip_known:
             return None
+        if self.t < self.stale_grip_until:
+            return False  # the message saying it holds again has not come yet
         return self.held is not None
 
     # -------------------------------------------------------------- walking
@@ -444,6 +451,8 @@ class FakeHouse:
         self.calls.append(("grasp", t.label))
         if (refused := self._request("grasp")) is not None:
             return refused
+        if self.held is not None:  # as manipulation: the opening would drop it anywhere
+            return Outcome(False, "already_holding: place or put it down first", rejected=True)
         self.t += 5.0
         failures = self.grasp_failures.get(t.label)
         if failures:
@@ -473,7 +482,12 @@ class FakeHouse:
             return Outcome(False, "too_far: out of reach", rejected=True)
         if self.sticky.get(self.held.label, 0) > 0:
             self.sticky[self.held.label] -= 1
+            self.stale_grip_until = self.t + self.grip_lag
             return Outcome(True)  # the action says done; the gripper still holds it
+        if self.stuck.get(self.held.label, 0) > 0:
+            self.stuck[self.held.label] -= 1
+            self.stale_grip_until = self.t + self.grip_lag
+            return Outcome(False, "object_stuck: the fingers still hold something after release")
         tidy = [p for p in PLACES.values() if p.kind in ("deposit", "drawer")]
         near = min(tidy, key=lambda p: math.dist(p.target[:2], position[:2]))
         inside = math.dist(near.target[:2], position[:2]) < 0.2
@@ -1114,6 +1128,42 @@ def test_a_place_is_checked_from_the_gripper_and_tried_again() -> None:
     assert rec.placed and [f.reason for f in rec.failures] == ["still holding after the place"]
     assert len(_calls(house, "place")) == 2
     assert house.things[1].released_in == "tray"
+
+
+def test_a_place_whose_fingers_close_on_it_again_is_tried_again_on_the_spot() -> None:
+    """object_stuck: the object is still in the fingers above the region, whatever the grip
+    message (trailing the result) says at that moment; it is released there once more, not
+    taken for let go and carried along to the next grasp (paper-5's soup can)."""
+    house = FakeHouse(_things()[:2])
+    house.stuck = {"tomato_soup_can": 1}
+    house.grip_lag = 0.05
+    report = _task(house).run()
+    rec = _record(report, "tomato_soup_can")
+    assert rec.placed and not rec.dropped
+    assert [f.reason for f in rec.failures] == []  # (a retry on the spot, not a failure)
+    tray = [c for c in _calls(house, "place") if math.dist(c[0][:2], (7.0, 3.6)) < 0.2]
+    assert len(tray) == 2
+    assert house.things[1].released_in == "tray"
+    assert all(r.placed for r in report.objects)
+
+
+def test_a_grasp_refused_while_holding_sets_the_held_object_down_first() -> None:
+    """A grasp refused as already_holding (here the place said done, the gripper kept the
+    screwdriver and its message came after the check read "let go"): it is put down, taken
+    for not placed, and every object ends in its place."""
+    house = FakeHouse(_things(), sticky={"screwdriver": 1})  # (the first one taken up)
+    house.grip_lag = 0.05
+    report = _task(house).run()
+    reasons = [f.reason for r in report.objects for f in r.failures]
+    assert reasons == ["still in the gripper at the next grasp"]
+    assert len([c for c in _calls(house, "grasp") if c == "screwdriver"]) == 2
+    assert all(r.placed for r in report.objects), reasons
+    assert {t.label: t.released_in for t in house.things.values()} == {
+        "tomato_soup_can": "tray",
+        "screwdriver": "drawer_top",
+        "bowl": "small_box",
+        "baseball": "green_box",
+    }
 
 
 # ------------------------------------------------------------------ ends

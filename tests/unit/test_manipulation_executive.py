@@ -294,5 +294,7 @@ def test_a_restart_while_carrying_announces_an_unknown_payload_and_can_place():
     assert p.grip is GripState.HOLDING and p.object_name == ""
     assert p.mass == pytest.approx(CFG.gripper.default_payload_mass) and p.gap == 0.03
     assert ex.payload.mass == pytest.approx(CFG.gripper.default_payload_mass)
+    # it refuses a grasp until it has let go: the pre-grasp opening would drop it
+    assert ex.accept(_floor_grasp(ex), plant.obs()).reason.startswith("already_holding")
     verdict = ex.accept(PlaceRequest((0.36, 0.0, ex.floor_z + 0.05)), plant.obs())
     assert verdict.accepted, verdict.reason

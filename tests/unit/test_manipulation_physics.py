@@ -12,7 +12,7 @@ import math
 import mujoco
 import numpy as np
 import pytest
-from quadmanip.services.manipulation.arm_kinematics import ArmGeometry
+from quadmanip.services.manipulation.arm_kinematics import ArmGeometry, ArmTarget
 from quadmanip.services.manipulation.config import load_manipulation_config
 from quadmanip.services.manipulation.drawer import DrawerPrimitive, plan_drawer
 from quadmanip.services.manipulation.grasp import GraspPrimitive, plan_grasp
@@ -184,3 +184,34 @@ def test_place_tool_into_open_drawer():
     h.settle(1.0)
     assert in_region(h, world, "drawer_top", "padlock")
     _assert_honest(h)
+
+
+def test_place_clears_an_object_left_standing_between_the_fingers():
+    """Released low with a short retract (the can sets down on the tray's floor and its top
+    stays between the open fingers), the empty check closes on it: the fingers open, rise
+    and check again, and the place succeeds with the can in the tray (paper-5's soup can
+    failed object_stuck here and was carried on)."""
+    name, place, cx = "tomato_soup_can", "tray", 0.50
+    o = CAT.objects[name]
+    boxes = container_boxes(place, cx, TABLE_HEIGHT) + table_boxes(length=0.7)
+    pos = (0.31, 0.0, TABLE_HEIGHT + o.size[2] / 2 + 0.001)
+    h = SimHarness([PlacedObject(name, pos, yaw=0.2)], boxes)
+    h.settle(0.3)
+    g = _grasp(h, name, TABLE_HEIGHT, "vertical")
+    assert g.status is Status.SUCCEEDED, g.reason
+    hang = float(h.tcp_world()[2] - (h.object_pos(name)[2] - o.size[2] / 2))
+    ix, iy, height = container_inner(place, cx)
+    target = np.array([cx - 0.6 * ix, 0.0, TABLE_HEIGHT + height])
+    plan = plan_place(GEOM, CFG, h.world_to_base(target), h.observation().q_arm, hang, g.body)
+    r = plan.release
+    low = CFG.grasp.place_release_z  # the can's bottom at the rim when the fingers open
+    plan.release = ArmTarget(r.x, r.z - low, r.pitch, r.roll)
+    plan.retract = ArmTarget(r.x, r.z - low + 0.01, r.pitch, r.roll)
+    p = h.run(PlacePrimitive(GEOM, CFG, plan, monitor=g.monitor, body=g.body), KP, KD, timeout=40)
+    stages = [text for _, text in p.progress.log]
+    assert "place: clear the fingers" in stages  # the first check did close on the can
+    assert p.status is Status.SUCCEEDED, p.reason
+    h.settle(1.0)
+    end = h.object_pos(name)
+    assert abs(end[0] - cx) < ix and abs(end[1]) < iy, f"{name} ended at {end}"
+    assert TABLE_HEIGHT < end[2] < TABLE_HEIGHT + height + 0.15
