@@ -385,7 +385,10 @@ class FakeHouse:
         )
         stance = (target[0] - standoff * math.cos(h), target[1] - standoff * math.sin(h))
         if any(math.dist(stance, f) < 0.35 for f in self.furniture):
+            # it walked until the footprint touched it: from here every approach stops at
+            # once, until a walk leads it clear
             self.t += 0.2
+            self.by_furniture = True
             return Outcome(False, "blocked: an obstacle touches the footprint")
         self.t += self.walk_s / 2
         self.at = (*stance, h)
