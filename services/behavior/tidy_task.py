@@ -78,6 +78,7 @@ from typing import Literal
 
 from quadmanip.common.object_catalogue import Catalogue
 from quadmanip.common.places import Place
+from quadmanip.common.reasons import parse_reach_band
 from quadmanip.services.behavior.coverage import SearchConfig, sees, zone_viewpoints
 from quadmanip.services.behavior.frames import Point3, Pose2, wrap
 from quadmanip.services.behavior.report import (
@@ -1593,6 +1594,16 @@ class TidyTask:
         grasp_xy = (plan.position_map[0], plan.position_map[1])
         now_dist = _dist(self._pose(), grasp_xy)
         standoff = None
+        band = parse_reach_band(out.reason)
+        if band is not None:
+            # the planner says which distances work: stand so the grasp point lies in the
+            # middle of that band (the reason alone sent paper-5's marker back and forth)
+            lo, hi, asked = band
+            standoff = now_dist + (lo + hi) / 2 - asked
+            moved = self.robot.approach(grasp_xy, standoff, self._facing(rec, standoff))
+            if not moved.ok:
+                return Step.APPROACH
+            return Step.APPROACH if probe.horizontal else Step.PROBE
         close, far = self.reach
         if LATERAL in out.reason:
             # too far to the side for this grasp yaw: face the grasp point again

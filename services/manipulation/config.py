@@ -162,6 +162,10 @@ class ExecutiveConfig:
     claim_timeout: float = 2.0
     # After a cancel request, how long (s, wall clock) to wait for the arm to stop.
     cancel_wait: float = 2.0
+    # A grasp refused as unreachable says from which distances ahead it would be planned:
+    # searched this far either side of the asked one (m), in these steps (m).
+    reach_search: float = 0.24
+    reach_step: float = 0.02
 
 
 @dataclass(frozen=True)

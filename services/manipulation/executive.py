@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from quadmanip.common import robot_description as rd
+from quadmanip.common.reasons import reach_band_text
 from quadmanip.services.manipulation.arm_kinematics import ArmGeometry
 from quadmanip.services.manipulation.config import ManipulationConfig
 from quadmanip.services.manipulation.drawer import DrawerPrimitive, plan_drawer
@@ -430,7 +431,51 @@ class Executive:
             except GraspRejected as exc:
                 err = err or exc
         assert err is not None
+        if err.reason == "unreachable":
+            band = self._reach_band(req, approaches)
+            if band is not None:
+                lo, hi = band
+                raise GraspRejected(
+                    err.reason,
+                    f"{err.detail}; {reach_band_text(lo, hi, float(pos[0]))}",
+                )
         raise err
+
+    def _reach_band(
+        self, req: GraspRequest, approaches: Sequence[str]
+    ) -> tuple[float, float] | None:
+        """The band of distances ahead (body x) from which this grasp would be planned, the
+        rest of it unchanged: the run of reachable x nearest to the one asked, searched
+        ``reach_search`` either side in ``reach_step`` steps; None if none is. A stance
+        rejection's own reason does not say which way to step: a floor grasp beyond the
+        band's far edge fails on the trunk envelope ("self_collision") as one before its
+        near edge does (paper-5: the task stepped back from a too-far marker, then in
+        again, four times, and gave it up)."""
+        ex = self.cfg.executive
+        pos = np.asarray(req.position, dtype=float)
+        n = int(round(ex.reach_search / ex.reach_step))
+        xs = pos[0] + ex.reach_step * np.arange(-n, n + 1)
+        ok = np.zeros(len(xs), dtype=bool)
+        for i, x in enumerate(xs):
+            p = np.array([x, pos[1], pos[2]])
+            for ap in approaches:
+                try:
+                    plan_grasp(
+                        self.geom, self.cfg, p, ap, req.yaw, req.width, self.body, tilt=req.tilt
+                    )
+                except GraspRejected:
+                    continue
+                ok[i] = True
+                break
+        if not ok.any():
+            return None
+        near = int(np.flatnonzero(ok)[np.argmin(np.abs(np.flatnonzero(ok) - n))])
+        lo = hi = near
+        while lo > 0 and ok[lo - 1]:
+            lo -= 1
+        while hi < len(xs) - 1 and ok[hi + 1]:
+            hi += 1
+        return float(xs[lo]), float(xs[hi])
 
     def _hang_of(self, req: GraspRequest, approach: str) -> float:
         """Policy: the held object's hang below the tool centre after a grasp."""

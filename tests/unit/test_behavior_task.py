@@ -29,6 +29,7 @@ from quadmanip.common import messages as m
 from quadmanip.common.config import CONFIG_DIR, load_config
 from quadmanip.common.object_catalogue import load_catalogue
 from quadmanip.common.places import Place, load_places
+from quadmanip.common.reasons import reach_band_text
 from quadmanip.services.behavior.config import BehaviorConfig
 from quadmanip.services.behavior.coverage import sees, zone_viewpoints
 from quadmanip.services.behavior.frames import (
@@ -175,6 +176,7 @@ class FakeHouse:
         # label -> (near, far): its grasp is refused from a stance nearer than ``near`` (the
         # arm against the trunk) or farther than ``far`` (out of reach), m to the object
         self.reach_bands: dict[str, tuple[float, float]] = {}
+        self.band_hints = False  # refusals name the reachable band (manipulation does)
         # request name -> its nth call trips locomotion's safety (the robot falls over,
         # the legs damped); every request fails "robot_down" until it gets up
         self.trip_at: dict[str, int] = {}
@@ -464,9 +466,14 @@ class FakeHouse:
             return Outcome(False, why, rejected=rejected)
         dist, bearing = _bearing(self.at, t.position)
         near, far = self.reach_bands.get(t.label, (0.2, 0.6))
-        if dist < near:
+        # as manipulation: the refusal names the band (beyond its far edge a floor grasp
+        # also fails on the trunk envelope, so the code alone does not say which way)
+        band = f"; {reach_band_text(near, far, dist)}" if self.band_hints else ""
+        if dist < near or (self.band_hints and dist > far):
             return Outcome(
-                False, f"self_collision: the arm would touch the trunk at {dist:.3f}", rejected=True
+                False,
+                f"unreachable: self_collision: the arm would touch the trunk at {dist:.3f}{band}",
+                rejected=True,
             )
         if dist > far or abs(bearing) > 0.3:
             return Outcome(False, f"too_far: {dist:.2f} m at {bearing:.2f} rad", rejected=True)
@@ -1167,6 +1174,21 @@ def test_a_grasp_refused_while_holding_sets_the_held_object_down_first() -> None
         "bowl": "small_box",
         "baseball": "green_box",
     }
+
+
+def test_a_grasp_refused_with_its_reachable_band_is_taken_from_the_bands_middle() -> None:
+    """Beyond the band's far edge the refusal reads "self_collision" as one too close does
+    (paper-5: the marker, stepped back from and in again four times, given up); with the
+    band named, one step into its middle and the grasp is done."""
+    house = FakeHouse(_things()[:1])
+    house.reach_bands = {"tomato_soup_can": (0.22, 0.30)}  # the probe stands 0.36 off
+    house.band_hints = True
+    report = _task(house).run()
+    rec = _record(report, "tomato_soup_can")
+    assert rec.placed and len([f for f in rec.failures if "self_collision" in f.reason]) == 1
+    assert _calls(house, "grasp") == ["tomato_soup_can", "tomato_soup_can"]
+    steps = [a for what, a in house.calls if what == "approach" and a[0] == (2.5, 1.4)]
+    assert steps[-1][1] == pytest.approx(0.26, abs=0.01)  # the band's middle
 
 
 # ------------------------------------------------------------------ ends

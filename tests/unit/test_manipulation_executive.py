@@ -11,6 +11,7 @@ import time
 
 import numpy as np
 import pytest
+from quadmanip.common.reasons import parse_reach_band
 from quadmanip.services.manipulation import executive as ex_mod
 from quadmanip.services.manipulation.arm_kinematics import ArmGeometry
 from quadmanip.services.manipulation.config import load_manipulation_config
@@ -298,3 +299,26 @@ def test_a_restart_while_carrying_announces_an_unknown_payload_and_can_place():
     assert ex.accept(_floor_grasp(ex), plant.obs()).reason.startswith("already_holding")
     verdict = ex.accept(PlaceRequest((0.36, 0.0, ex.floor_z + 0.05)), plant.obs())
     assert verdict.accepted, verdict.reason
+
+
+def test_an_unreachable_grasp_names_the_distances_it_would_be_planned_from():
+    """A floor grasp beyond the reachable band fails on the trunk envelope, as one before
+    it does: the refusal names the band (body x), which holds the nominal 36 cm probing
+    distance and excludes the asked one."""
+    ex = _executive()
+    obs = Plant(POSTURES["stow"]).obs()
+    far = GraspRequest(position=(0.50, 0.0, ex.floor_z + 0.01), approach="vertical")
+    reason = ex.accept(far, obs).reason
+    assert reason.startswith("unreachable")
+    band = parse_reach_band(reason)
+    assert band is not None, reason
+    lo, hi, asked = band
+    assert asked == pytest.approx(0.50)
+    assert lo < 0.36 < hi < 0.50
+    # nothing reachable anywhere near: no band
+    nowhere = GraspRequest(position=(0.4, 0.0, ex.floor_z - 0.3), approach="vertical")
+    reason = ex.accept(nowhere, obs).reason
+    assert reason.startswith("unreachable") and parse_reach_band(reason) is None
+    # the band's middle is planned
+    mid = GraspRequest(position=((lo + hi) / 2, 0.0, ex.floor_z + 0.01), approach="vertical")
+    assert ex.accept(mid, obs).accepted

@@ -1,0 +1,29 @@
+"""Texts in action results that more than one service reads (transport-free, so the
+services' algorithm modules may import it).
+
+A reason is a short code and a human-readable detail ("unreachable: ..."); where the
+caller acts on more than the code, the clause it parses is written and read here only.
+"""
+
+from __future__ import annotations
+
+import re
+
+__all__ = ["parse_reach_band", "reach_band_text"]
+
+
+#: How a grasp refused as unreachable names the distances ahead (body x, m) it would be
+#: planned from: manipulation appends it to the refusal's reason, the task steps into it.
+_REACH_BAND = re.compile(r"reachable (-?\d+\.\d+)-(-?\d+\.\d+) m ahead \(asked (-?\d+\.\d+)\)")
+
+
+def reach_band_text(lo: float, hi: float, asked: float) -> str:
+    """The reason's clause naming the reachable band ``lo``-``hi`` for a grasp ``asked``
+    at that distance ahead."""
+    return f"reachable {lo:.3f}-{hi:.3f} m ahead (asked {asked:.3f})"
+
+
+def parse_reach_band(reason: str) -> tuple[float, float, float] | None:
+    """(lo, hi, asked) from a reason holding :func:`reach_band_text`'s clause, else None."""
+    m = _REACH_BAND.search(reason)
+    return None if m is None else (float(m[1]), float(m[2]), float(m[3]))
