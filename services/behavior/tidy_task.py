@@ -1282,6 +1282,13 @@ class TidyTask:
                     self._follow_rename(rec, obj)
         if not found:
             if self.zone is None and not self.zones_todo:
+                if self.last_released is not None and self.robot.holding():
+                    # the last object let go of never left the fingers (its grip message
+                    # came after the check): set it down here and look for it again
+                    self._still_held("still in the gripper when nothing was left")
+                    self._put_down()
+                    self._look_where_it_fell(self._pose())
+                    return Step.GO_TO_VIEWPOINT
                 return Step.DONE
             return Step.GO_TO_VIEWPOINT
         here = self._pose()
@@ -1705,7 +1712,7 @@ class TidyTask:
             return Step.GO_TO_VIEWPOINT
         return self._give_up_or(Step.PLACE, f"place: {out.reason}", Step.PLACE)
 
-    def _still_held(self) -> None:
+    def _still_held(self, why: str = "still in the gripper at the next grasp") -> None:
         """The object last let go of is in the fingers after all: not placed (or dropped
         where the task thought), to be found and taken up again once set down."""
         rec = self.last_released

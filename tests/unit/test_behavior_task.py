@@ -1176,6 +1176,20 @@ def test_a_grasp_refused_while_holding_sets_the_held_object_down_first() -> None
     }
 
 
+def test_the_last_object_still_in_the_fingers_at_the_end_is_set_down_and_placed() -> None:
+    """The last place said done and the check read "let go" before the grip message came:
+    with nothing left to do the gripper still holds it, so it is set down, found and
+    placed (not left in the gripper with the trial reported done)."""
+    house = FakeHouse(_things(), sticky={"tomato_soup_can": 1})  # (the last one taken up)
+    house.grip_lag = 0.05
+    report = _task(house).run()
+    assert report.outcome == "done"
+    assert house.held is None
+    assert house.things[1].released_in == "tray"
+    rec = _record(report, "tomato_soup_can")
+    assert [f.reason for f in rec.failures] == ["still in the gripper when nothing was left"]
+
+
 def test_a_grasp_refused_with_its_reachable_band_is_taken_from_the_bands_middle() -> None:
     """Beyond the band's far edge the refusal reads "self_collision" as one too close does
     (paper-5: the marker, stepped back from and in again four times, given up); with the
