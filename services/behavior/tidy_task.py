@@ -1721,11 +1721,7 @@ class TidyTask:
         with self._lock:
             rec.placed = False
             rec.dropped = True
-            rec.failures.append(
-                Failure(
-                    Step.VERIFY.value, "still in the gripper at the next grasp", self.robot.now()
-                )
-            )
+            rec.failures.append(Failure(Step.VERIFY.value, why, self.robot.now()))
         self.done_tracks.discard(rec.track_id)
         self.last_released = None
 
