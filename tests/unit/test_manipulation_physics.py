@@ -117,8 +117,9 @@ PLACES = [
 ]
 
 
-@pytest.mark.parametrize(("name", "surface", "place", "cx", "yaw"), PLACES)
-def test_place_into_region(name, surface, place, cx, yaw):
+def _grasped_for_place(name: str, surface: float, place: str, cx: float, yaw: float | None):
+    """The object grasped from ``surface`` 31 cm ahead, beside ``place``'s container ``cx``
+    ahead, and a place plan over the container's near half: (harness, grasp, plan)."""
     o = CAT.objects[name]
     boxes = container_boxes(place, cx, surface)
     if surface > 0:
@@ -131,17 +132,28 @@ def test_place_into_region(name, surface, place, cx, yaw):
     assert g.status is Status.SUCCEEDED, g.reason
     # the object's hang below the tool centre: known from the grasp height over the surface
     hang = float(h.tcp_world()[2] - (h.object_pos(name)[2] - o.size[2] / 2))
-    ix, iy, height = container_inner(place, cx)
+    ix, _, height = container_inner(place, cx)
     target = np.array([cx - 0.6 * ix, 0.0, surface + height])
     q = h.observation().q_arm
     plan = plan_place(GEOM, CFG, h.world_to_base(target), q, hang, g.body, yaw=yaw)
-    p = h.run(PlacePrimitive(GEOM, CFG, plan, monitor=g.monitor, body=g.body), KP, KD, timeout=40.0)
-    assert p.status is Status.SUCCEEDED, p.reason
+    return h, g, plan
+
+
+def _assert_in_container(h: SimHarness, name: str, surface: float, place: str, cx: float) -> None:
     h.settle(1.0)
+    ix, iy, height = container_inner(place, cx)
     end = h.object_pos(name)
     assert abs(end[0] - cx) < ix and abs(end[1]) < iy, f"{name} ended at {end}"
     # the judge's region: the inner footprint, from the inner floor to 15 cm above the rim
     assert surface < end[2] < surface + height + 0.15
+
+
+@pytest.mark.parametrize(("name", "surface", "place", "cx", "yaw"), PLACES)
+def test_place_into_region(name, surface, place, cx, yaw):
+    h, g, plan = _grasped_for_place(name, surface, place, cx, yaw)
+    p = h.run(PlacePrimitive(GEOM, CFG, plan, monitor=g.monitor, body=g.body), KP, KD, timeout=40.0)
+    assert p.status is Status.SUCCEEDED, p.reason
+    _assert_in_container(h, name, surface, place, cx)
     assert p.t_end - p.t_start < 20.0
     _assert_honest(h)
 
@@ -192,17 +204,7 @@ def test_place_clears_an_object_left_standing_between_the_fingers():
     and check again, and the place succeeds with the can in the tray (paper-5's soup can
     failed object_stuck here and was carried on)."""
     name, place, cx = "tomato_soup_can", "tray", 0.50
-    o = CAT.objects[name]
-    boxes = container_boxes(place, cx, TABLE_HEIGHT) + table_boxes(length=0.7)
-    pos = (0.31, 0.0, TABLE_HEIGHT + o.size[2] / 2 + 0.001)
-    h = SimHarness([PlacedObject(name, pos, yaw=0.2)], boxes)
-    h.settle(0.3)
-    g = _grasp(h, name, TABLE_HEIGHT, "vertical")
-    assert g.status is Status.SUCCEEDED, g.reason
-    hang = float(h.tcp_world()[2] - (h.object_pos(name)[2] - o.size[2] / 2))
-    ix, iy, height = container_inner(place, cx)
-    target = np.array([cx - 0.6 * ix, 0.0, TABLE_HEIGHT + height])
-    plan = plan_place(GEOM, CFG, h.world_to_base(target), h.observation().q_arm, hang, g.body)
+    h, g, plan = _grasped_for_place(name, TABLE_HEIGHT, place, cx, None)
     r = plan.release
     low = CFG.grasp.place_release_z  # the can's bottom at the rim when the fingers open
     plan.release = ArmTarget(r.x, r.z - low, r.pitch, r.roll)
@@ -211,7 +213,4 @@ def test_place_clears_an_object_left_standing_between_the_fingers():
     stages = [text for _, text in p.progress.log]
     assert "place: clear the fingers" in stages  # the first check did close on the can
     assert p.status is Status.SUCCEEDED, p.reason
-    h.settle(1.0)
-    end = h.object_pos(name)
-    assert abs(end[0] - cx) < ix and abs(end[1]) < iy, f"{name} ended at {end}"
-    assert TABLE_HEIGHT < end[2] < TABLE_HEIGHT + height + 0.15
+    _assert_in_container(h, name, TABLE_HEIGHT, place, cx)
