@@ -1703,11 +1703,11 @@ class TidyTask:
         # it let go somewhere other than asked (or manipulation, restarted, lost the grip);
         # the grip state may trail the result (paper-5: read 2 ms before "holding" came,
         # a stuck soup can counted as let go and rode along to the next grasp)
-        if STUCK not in out.reason:
+        stuck = STUCK in out.reason  # held, whatever the (trailing) grip message says
+        if not stuck:
             self.robot.wait(self.cfg.let_go_wait)
-        if (STUCK not in out.reason and self.robot.holding() is False) or (
-            out.rejected and NOT_HOLDING in out.reason
-        ):
+        let_go = not stuck and self.robot.holding() is False
+        if let_go or (out.rejected and NOT_HOLDING in out.reason):
             self._dropped(f"place: {out.reason}; let go elsewhere", Step.PLACE)
             return Step.GO_TO_VIEWPOINT
         return self._give_up_or(Step.PLACE, f"place: {out.reason}", Step.PLACE)

@@ -467,10 +467,10 @@ class Executive:
                     continue
                 ok[i] = True
                 break
-        if not ok.any():
+        idx = np.flatnonzero(ok)
+        if idx.size == 0:
             return None
-        near = int(np.flatnonzero(ok)[np.argmin(np.abs(np.flatnonzero(ok) - n))])
-        lo = hi = near
+        lo = hi = int(idx[np.argmin(np.abs(idx - n))])  # the reachable x nearest the asked
         while lo > 0 and ok[lo - 1]:
             lo -= 1
         while hi < len(xs) - 1 and ok[hi + 1]:
