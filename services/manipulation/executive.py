@@ -346,14 +346,16 @@ class Executive:
     def step(self, obs: Observation) -> list[Output]:
         """Feeds ``obs`` (newest joint state) to the running goal; returns what to send."""
         with self._lock:
-            out: list[Output] = self._watch_payload(obs)
             run = self._run
             if run is None or not run.started:
                 # keep watching the grip while carrying between actions (holding -> lost)
                 self.monitor.update(obs.t, obs.gripper_gap, obs.gripper_effort)
-                return out
+                return self._watch_payload(obs)
             prim = run.primitive
             cmds = prim.cancel(obs) if run.cancel else prim.step(obs)
+            # the grip verdict after this step, so that the step ending a goal carries
+            # what the goal left: the task reads the grip the moment the result arrives
+            out: list[Output] = self._watch_payload(obs)
             if prim.done:
                 self._finish(run)
         return out + self._outputs(cmds)

@@ -159,6 +159,14 @@ class ManipulationNode(Service):
 
         outcome = self.executive.execute(handle.goal, cancel_requested=stop_now,
                                          feedback=handle.feedback)  # fmt: skip
+        # what the goal left in the fingers goes out before its result (the loop thread
+        # sends it too, but may do so just after this thread answers)
+        held = self.executive.payload
+        obs = self._observation()
+        stamp = obs.t if obs is not None else 0.0
+        self.pub_payload.publish(
+            m.Payload(stamp=stamp, mass=held.mass, object_name=held.object_name)
+        )
         if outcome.status is Status.SUCCEEDED:
             return None
         if outcome.status is Status.CANCELED:

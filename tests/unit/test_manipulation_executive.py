@@ -322,3 +322,27 @@ def test_an_unreachable_grasp_names_the_distances_it_would_be_planned_from():
     # the band's middle is planned
     mid = GraspRequest(position=((lo + hi) / 2, 0.0, ex.floor_z + 0.01), approach="vertical")
     assert ex.accept(mid, obs).accepted
+
+
+@pytest.mark.parametrize("stuck", [False, True], ids=["let_go", "stuck"])
+def test_the_grip_verdict_is_sent_before_the_goal_ends(stuck):
+    """The task judges a place by the grip it reads the moment the result arrives: the
+    step that ends a goal must already carry the grip verdict that goal left. A place
+    whose empty check closes on the object again (stuck between the fingers) ends on
+    that check; its "holding" used to follow one step after the result."""
+    ex = _executive()
+    plant = Plant(POSTURES["stow"])
+    req = _floor_grasp(ex, mass=0.35, object_name="tomato_soup_can")
+    assert ex.accept(req, plant.obs(), token=req).accepted and ex.start(req) is not None
+    plant.run(ex)
+    place = PlaceRequest((0.36, 0.0, ex.floor_z + 0.05))
+    assert ex.accept(place, plant.obs(), token=place).accepted and ex.start(place)
+    if not stuck:
+        plant.width = 0.0  # the object stays where it was put: the fingers close on nothing
+    plant.run(ex)  # stops on the step that ended the place
+    assert not ex.running
+    verdicts = [c for c in plant.sent if isinstance(c, PayloadUpdate) and c.grip is not None]
+    if stuck:
+        assert verdicts[-1].grip is GripState.HOLDING and verdicts[-1].mass == 0.35
+    else:
+        assert verdicts[-1].grip is not GripState.HOLDING and verdicts[-1].mass == 0.0
