@@ -8,6 +8,11 @@ from its checkpoint with ``--resume``, so a schedule longer than one sitting is 
 parts. The weights file written at the end (``--out``) holds the model, its classes, its
 shape and a model card's numbers.
 
+On a machine with a GPU, ``--device cuda --workers N`` moves the network there and makes
+the augmented batches in N processes (the augmentation, not the network, is then the
+bottleneck); ``--budget-minutes M`` sets the cosine schedule's length from the measured
+rate so that the run ends, at the schedule's low learning rate, within M minutes.
+
 Losses (CenterNet): penalty-reduced focal loss on the class heat maps (alpha 2, beta 4;
 objects labelled too little visible are ignored, not negatives), L1 on the log box size
 and on the sub-cell offset at each object's centre cell, and a GIoU loss on the decoded
@@ -22,6 +27,7 @@ import math
 import signal
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -58,15 +64,21 @@ class CocoFrames:
             for a in coco["annotations"]:
                 x, y, w, h = a["bbox"]
                 per[a["image_id"]].append([a["category_id"] - 1, x, y, x + w, y + h, a["iscrowd"]])
-            for im in coco["images"]:
+
+            def read(im: dict[str, Any], root: Path = root) -> tuple[np.ndarray, np.ndarray]:
                 bgr = cv2.imread(str(root / im["file_name"]), cv2.IMREAD_COLOR)
                 d = cv2.imread(str(root / im["depth_file"]), cv2.IMREAD_UNCHANGED)
                 if bgr is None or d is None:
                     raise OSError(f"{root}: cannot read frame {im['file_name']}")
-                rgb.append(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
-                depth.append(d)
-                anns.append(np.array(per[im["id"]], np.float32).reshape(-1, 6))
-                seeds.append(int(im.get("seed", -1)))
+                return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), d
+
+            # OpenCV's decoders release the GIL: threads read the PNGs in parallel.
+            with ThreadPoolExecutor(max_workers=8) as pool:
+                for im, (c, d) in zip(coco["images"], pool.map(read, coco["images"]), strict=True):
+                    rgb.append(c)
+                    depth.append(d)
+                    anns.append(np.array(per[im["id"]], np.float32).reshape(-1, 6))
+                    seeds.append(int(im.get("seed", -1)))
         if not rgb:
             raise ValueError(f"no frames in {', '.join(map(str, roots))}")
         self.rgb = np.stack(rgb)
@@ -195,6 +207,19 @@ def _batch(
     return x, t
 
 
+class _Batches(torch.utils.data.IterableDataset):
+    """Endless augmented batches for DataLoader worker processes (each its own stream)."""
+
+    def __init__(self, data: CocoFrames, batch: int, seed: int, start: int) -> None:
+        self.data, self.batch, self.seed, self.start = data, batch, seed, start
+
+    def __iter__(self) -> Any:
+        info = torch.utils.data.get_worker_info()
+        rng = np.random.default_rng([self.seed, self.start, info.id if info else 0])
+        while True:
+            yield _batch(self.data, rng.integers(0, len(self.data), self.batch), rng)
+
+
 def _focal(logits: torch.Tensor, gt: torch.Tensor, ignore: torch.Tensor) -> torch.Tensor:
     p = torch.sigmoid(logits).clamp(1e-4, 1 - 1e-4)
     pos = gt.eq(1).float()
@@ -274,12 +299,19 @@ def train(
     seed: int = 0,
     log: Any = sys.stdout,
     stop_after_s: float | None = None,
+    device: str = "cpu",
+    workers: int = 0,
+    budget_minutes: float | None = None,
 ) -> dict[str, Any]:
-    """Train (or resume) for ``iters`` iterations in all; returns the final state's card."""
+    """Train (or resume) for ``iters`` iterations in all; returns the final state's card.
+
+    ``budget_minutes`` replaces ``iters`` by what fits: after 100 iterations (or a minute)
+    the rate is measured and the schedule's end set so that the whole call ends within the budget."""
     torch.set_num_threads(threads)
     torch.manual_seed(seed)
+    torch.backends.cudnn.benchmark = device.startswith("cuda")
     cfg = NetworkShape()
-    net = CenterNet(len(data.classes), cfg)
+    net = CenterNet(len(data.classes), cfg).to(device)
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
     state: dict[str, Any] = {"iteration": 0, "train_minutes": 0.0, "history": []}
     if resume and checkpoint.exists():
@@ -314,7 +346,7 @@ def train(
     def save(path: Path, with_opt: bool) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
         blob = {
-            "model": net.state_dict(),
+            "model": {k: v.detach().cpu() for k, v in net.state_dict().items()},
             "classes": list(data.classes),
             "config": asdict(cfg),
             **state,
@@ -329,12 +361,38 @@ def train(
     t_start = time.monotonic()
     t_seg = t_start
     losses: list[float] = []
+    batches = None
+    if workers > 0:
+        batches = iter(
+            torch.utils.data.DataLoader(
+                _Batches(data, batch, seed, state["iteration"]),
+                batch_size=None,
+                num_workers=workers,
+                pin_memory=device != "cpu",
+                prefetch_factor=4,
+            )
+        )
+    it_rate0 = (state["iteration"], t_start)
     try:
         while state["iteration"] < iters and not stop["now"]:
             it = state["iteration"]
+            if budget_minutes is not None and (
+                it - it_rate0[0] == 100 or (it > it_rate0[0] and time.monotonic() - t_start > 60)
+            ):
+                rate = (it - it_rate0[0]) / (time.monotonic() - it_rate0[1])
+                left = budget_minutes * 60.0 - (time.monotonic() - t_start)
+                iters = it + max(1, int(rate * left))
+                budget_minutes = None  # measured once
+                card["iters_planned"] = iters
+                print(f"[train] {rate:.1f} it/s: the schedule ends at {iters}", file=log)
             for g in opt.param_groups:
                 g["lr"] = _lr(it, iters, lr, 200)
-            x, t = _batch(data, rng.integers(0, len(data), batch), rng)
+            if batches is None:
+                x, t = _batch(data, rng.integers(0, len(data), batch), rng)
+            else:
+                x, t = next(batches)
+            x = x.to(device, non_blocking=True)
+            t = {k: v.to(device, non_blocking=True) for k, v in t.items()}
             loss, parts = detection_loss(net(x), t)
             opt.zero_grad(set_to_none=True)
             loss.backward()
@@ -391,9 +449,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--stop-after", type=float, default=None, help="stop after S seconds")
+    ap.add_argument("--device", default="cpu", help="cpu, or cuda on a machine with a GPU")
+    ap.add_argument("--workers", type=int, default=0, help="batch-making processes (0: inline)")
+    ap.add_argument(
+        "--budget-minutes", type=float, default=None, help="fit the schedule to this time"
+    )
     args = ap.parse_args(argv)
-    if args.iters <= 0 or args.batch <= 0:
-        ap.error("--iters and --batch must be positive")
+    if args.iters <= 0 or args.batch <= 0 or args.workers < 0:
+        ap.error("--iters and --batch must be positive, --workers not negative")
+    if args.device != "cpu" and not torch.cuda.is_available():
+        ap.error(f"--device {args.device}: no GPU here (torch sees none)")
     if not args.resume and args.checkpoint.exists():
         ap.error(f"{args.checkpoint} exists: pass --resume to continue it, or remove it")
     for d in args.data:
@@ -414,6 +479,9 @@ def main(argv: list[str] | None = None) -> int:
         threads=args.threads,
         seed=args.seed,
         stop_after_s=args.stop_after,
+        device=args.device,
+        workers=args.workers,
+        budget_minutes=args.budget_minutes,
     )
     return 0
 

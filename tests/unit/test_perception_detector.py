@@ -103,6 +103,12 @@ def test_a_few_training_iterations_learn_and_resume(tmp_path: Path, scenes: Scen
     assert all(math.isfinite(v) for v in losses)
     more = tr.train(data, 6, 2, out, ck, resume=True, save_every=2, threads=1)
     assert more["iteration"] == 6 and more["train_minutes"] >= first["train_minutes"]
+    # batches from a worker process, the schedule fitted to a time budget: after 100
+    # iterations the rate sets the end, well short of the provisional 10**6
+    fitted = tr.train(
+        data, 10**6, 2, out, ck, resume=True, threads=1, workers=1, budget_minutes=0.05
+    )
+    assert 107 <= fitted["iteration"] == fitted["card"]["iters_planned"] < 10**6
     d = det.Detector(det.DetectorConfig(weights=str(out), score_threshold=0.0))
     assert d.classes == scenes.names
     found = d(scenes.render(0)[1].rgb, scenes.render(0)[1].depth)
