@@ -208,7 +208,8 @@ def _batch(
 
 
 class _Batches(torch.utils.data.IterableDataset):
-    """Endless augmented batches for DataLoader worker processes (each its own stream)."""
+    """Endless augmented batches, in this process or in DataLoader workers (each its own
+    random stream)."""
 
     def __init__(self, data: CocoFrames, batch: int, seed: int, start: int) -> None:
         self.data, self.batch, self.seed, self.start = data, batch, seed, start
@@ -305,8 +306,9 @@ def train(
 ) -> dict[str, Any]:
     """Train (or resume) for ``iters`` iterations in all; returns the final state's card.
 
-    ``budget_minutes`` replaces ``iters`` by what fits: after 100 iterations (or a minute)
-    the rate is measured and the schedule's end set so that the whole call ends within the budget."""
+    ``budget_minutes`` replaces ``iters`` by what fits: after 100 iterations (or a
+    minute) the rate is measured and the schedule's end set so that the whole call ends
+    within the budget."""
     torch.set_num_threads(threads)
     torch.manual_seed(seed)
     torch.backends.cudnn.benchmark = device.startswith("cuda")
@@ -326,7 +328,6 @@ def train(
             file=log,
             flush=True,
         )
-    rng = np.random.default_rng([seed, state["iteration"]])
     stop = {"now": False}
 
     def on_signal(signum: int, frame: Any) -> None:
@@ -361,25 +362,26 @@ def train(
     t_start = time.monotonic()
     t_seg = t_start
     losses: list[float] = []
-    batches = None
-    if workers > 0:
-        batches = iter(
-            torch.utils.data.DataLoader(
-                _Batches(data, batch, seed, state["iteration"]),
-                batch_size=None,
-                num_workers=workers,
-                pin_memory=device != "cpu",
-                prefetch_factor=4,
-            )
+    source = _Batches(data, batch, seed, state["iteration"])
+    batches = iter(
+        torch.utils.data.DataLoader(
+            source,
+            batch_size=None,
+            num_workers=workers,
+            pin_memory=device != "cpu",
+            prefetch_factor=4,
         )
-    it_rate0 = (state["iteration"], t_start)
+        if workers > 0
+        else source
+    )
+    it0 = state["iteration"]
     try:
         while state["iteration"] < iters and not stop["now"]:
             it = state["iteration"]
             if budget_minutes is not None and (
-                it - it_rate0[0] == 100 or (it > it_rate0[0] and time.monotonic() - t_start > 60)
+                it - it0 == 100 or (it > it0 and time.monotonic() - t_start > 60)
             ):
-                rate = (it - it_rate0[0]) / (time.monotonic() - it_rate0[1])
+                rate = (it - it0) / (time.monotonic() - t_start)
                 left = budget_minutes * 60.0 - (time.monotonic() - t_start)
                 iters = it + max(1, int(rate * left))
                 budget_minutes = None  # measured once
@@ -387,10 +389,7 @@ def train(
                 print(f"[train] {rate:.1f} it/s: the schedule ends at {iters}", file=log)
             for g in opt.param_groups:
                 g["lr"] = _lr(it, iters, lr, 200)
-            if batches is None:
-                x, t = _batch(data, rng.integers(0, len(data), batch), rng)
-            else:
-                x, t = next(batches)
+            x, t = next(batches)
             x = x.to(device, non_blocking=True)
             t = {k: v.to(device, non_blocking=True) for k, v in t.items()}
             loss, parts = detection_loss(net(x), t)
