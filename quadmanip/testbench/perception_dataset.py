@@ -10,7 +10,7 @@ seed, one randomised scene from both robot cameras and writes a COCO dataset:
   asked of a detector: evaluation ignores detections on them), ``categories`` (the
   catalogue's 18 objects, ids 1-18 in catalogue order).
 
-A scene is the robot in one of the paper's search or probing postures (Figs. 5, 12:
+A scene is the robot, standing, in one of the paper's search or probing postures (Figs. 5, 12:
 ``floor_search``, ``table_search``, ``probe_floor``, ``probe_table``, ``probe_horizontal``)
 somewhere in the house, with several catalogue objects resting on the floor or a table in
 front of it at random yaw, random floor, table and wall colours and lighting, a little base
@@ -150,7 +150,15 @@ class SceneRenderer:
         cfg = load_manipulation_config()
         self.postures = resolve_postures(ArmGeometry.from_description(), cfg)
         self.arm_adr = rd.joint_qpos_indices(m)[-4:]
+        self.leg_adr = rd.joint_qpos_indices(m)[:-4]
         self.free_adr = rd.free_joint_qpos_index(m)
+        # the robot stands (``home``) as it does when it searches and probes; the sim's
+        # start keyframe (``lying``) put the cameras 0.19 m too low and hid the robot's
+        # own body, which the live gripper camera sees and took for orange objects
+        self.stand_z = float(rd.home_qpos()[2])
+        self.stand_legs = rd.home_joint_positions()[:-4]
+        self.finger_adr = np.array([m.jnt_qposadr[m.joint(j).id] for j in rd.GRIPPER_JOINTS])
+        self.finger_range = np.array([m.jnt_range[m.joint(j).id] for j in rd.GRIPPER_JOINTS])
         self.floors = [s for s in self.world.surfaces if s.kind == "floor"]
         areas = np.array([(s.max[0] - s.min[0]) * (s.max[1] - s.min[1]) for s in self.floors])
         self.floor_p = areas / areas.sum()
@@ -273,10 +281,13 @@ class SceneRenderer:
                 self._place(
                     rng, extra, sp, 0.0, placed, lambda px, py, r: self._on_floor(px, py, r)
                 )
-        # robot base: start keyframe legs, a little height and pitch, the mode's arm posture
+        # robot base: standing legs (a little spread, as in a gait's stance), a little height
+        # and pitch, the mode's arm posture, the fingers anywhere from shut to open
         fa = self.free_adr
-        z0 = self.base_qpos[fa + 2]
-        d.qpos[fa : fa + 3] = [x, y, z0 + rng.uniform(-0.04, 0.02)]
+        d.qpos[fa : fa + 3] = [x, y, self.stand_z + rng.uniform(-0.03, 0.01)]
+        d.qpos[self.leg_adr] = self.stand_legs + rng.normal(0.0, 0.08, len(self.leg_adr))
+        lo, hi = self.finger_range[:, 0], self.finger_range[:, 1]
+        d.qpos[self.finger_adr] = lo + rng.uniform() * (hi - lo)
         tilt = quat_mul(
             quat_from_axis_angle(np.array([0.0, 1.0, 0.0]), float(rng.uniform(-0.08, 0.08))),
             quat_from_axis_angle(np.array([1.0, 0.0, 0.0]), float(rng.uniform(-0.03, 0.03))),

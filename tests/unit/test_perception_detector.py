@@ -41,6 +41,27 @@ def test_labels_are_the_visible_pixels_and_reproducible(scenes: SceneRenderer) -
     assert n_labels >= 1  # seed 7 puts objects in view (a scene is built around them)
 
 
+def test_scenes_show_the_robot_standing_as_it_searches(scenes: SceneRenderer) -> None:
+    """The cameras see from where they are when the robot searches and probes: the trunk at
+    the standing height (the ``home`` keyframe, 0.30 m), not the sim's start pose (lying,
+    0.11 m: every frame before 2026-12-04 was rendered from 0.19 m too low), and the
+    gripper camera sees the robot's own trunk between open fingers in some frames, as it
+    does in the live stack, so the detector learns it is not an object."""
+    from quadmanip.common import robot_description as rd
+
+    stand = float(rd.home_qpos()[2])
+    gaps = []
+    for seed in range(20):
+        scenes.pose_scene(seed)
+        q = scenes.data.qpos
+        assert stand - 0.031 <= q[scenes.free_adr + 2] <= stand + 0.011
+        legs = q[scenes.leg_adr] - scenes.stand_legs
+        assert np.abs(legs).max() < 0.5  # standing legs with a gait's spread
+        gaps.append(float(q[scenes.finger_adr[0]]))
+    lo, hi = scenes.finger_range[0]
+    assert min(gaps) < lo + 0.3 * (hi - lo) and max(gaps) > lo + 0.7 * (hi - lo)
+
+
 def test_depth_degradation_is_like_a_real_camera() -> None:
     rng = np.random.default_rng(0)
     d = np.full((100, 100), 2.0, np.float32)
