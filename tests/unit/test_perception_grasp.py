@@ -355,6 +355,31 @@ def test_filter_keeps_the_sphere_whole_and_finds_the_floor():
     assert len(res.object_points) == len(ball)
 
 
+def test_a_box_that_frames_the_robots_own_trunk_holds_no_object():
+    # the gripper camera's view of the trunk's front corner (inside the self box) with a
+    # strip of floor beside it: the floor left over must not become an object
+    cfg = FilterConfig()
+    trunk = _grid(0.12, 0.23, 0.05, 0.20)
+    trunk = np.column_stack([trunk, np.full(len(trunk), 0.05)])
+    floor = _grid(0.24, 0.30, 0.05, 0.20)
+    floor = np.column_stack([floor, np.full(len(floor), FLOOR)])
+    res = filter_object(np.vstack([trunk, floor]), CAM_ABOVE, cfg)
+    assert res.self_share > cfg.self_max_share
+    assert len(res.object_points) == 0
+    # an object in front of the trunk with a little trunk in its box is kept
+    rng = np.random.default_rng(1)
+    d = rng.normal(size=(2000, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    ball = np.array([0.4, 0.0, FLOOR + 0.0365]) + 0.0365 * d
+    ball = ball[ball[:, 2] > FLOOR + 0.01]
+    around = _grid(0.32, 0.48, -0.08, 0.08)
+    around = around[np.hypot(around[:, 0] - 0.4, around[:, 1]) > 0.0365]
+    around = np.column_stack([around, np.full(len(around), FLOOR)])
+    res = filter_object(np.vstack([ball, around, trunk[: len(ball) // 4]]), CAM_ABOVE, cfg)
+    assert 0.0 < res.self_share < cfg.self_max_share
+    assert len(res.object_points) >= 0.9 * len(ball)
+
+
 def test_height_map_bins_metrically_and_keeps_max_or_mean():
     pts = np.array([[0.0, 0.0, 0.02], [0.001, 0.001, 0.04], [0.02, 0.0, 0.01]])
     axes = vertical_axes(np.array([0.0, 0.0, 1.0]), 0.0)
