@@ -149,8 +149,8 @@ class SceneRenderer:
         self.renderer = RgbdRenderer(m, {c: CameraConfig() for c in CAMERAS})
         cfg = load_manipulation_config()
         self.postures = resolve_postures(ArmGeometry.from_description(), cfg)
-        self.arm_adr = rd.joint_qpos_indices(m)[-4:]
-        self.leg_adr = rd.joint_qpos_indices(m)[:-4]
+        joints = rd.joint_qpos_indices(m)
+        self.arm_adr, self.leg_adr = joints[-4:], joints[:-4]
         self.free_adr = rd.free_joint_qpos_index(m)
         # the robot stands (``home``) as it does when it searches and probes; the sim's
         # start keyframe (``lying``) put the cameras 0.19 m too low and hid the robot's

@@ -150,7 +150,7 @@ def test_bad_input_shapes_are_refused() -> None:
 def test_committed_weights_find_objects_in_unseen_scenes(scenes: SceneRenderer) -> None:
     """Seeds 900000+ are never used for training (docs/perception.md): most visible
     objects are reported with the right class and a box at IoU >= 0.5, and few reports are
-    false (the model card's numbers: mAP50 0.95 on seeds 500000+)."""
+    false (the model card's numbers: mAP50 0.946 on seeds 500000+)."""
     assert WEIGHTS.exists(), f"the trained weights must be committed: {WEIGHTS}"
     cfg = det.DetectorConfig()
     d = det.Detector(cfg)
