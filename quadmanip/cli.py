@@ -36,6 +36,7 @@ PERCEPTION_TOOLS: dict[str, str] = {
     "dataset": "quadmanip.testbench.perception_dataset:main",
     "train": "quadmanip.services.perception.train:main",
     "evaluate": "quadmanip.testbench.detection_eval:main",
+    "replay": "quadmanip.services.perception.rejections:main",
 }
 
 EXIT_UNAVAILABLE = 3
@@ -324,9 +325,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser(
         "perception",
-        help="detector tools: render a labelled dataset, train, evaluate",
+        help="detector tools: render a labelled dataset, train, evaluate, replay rejections",
         description="Perception tools: `dataset` renders labelled camera frames (COCO), "
-        "`train` trains the detector (resumable), `evaluate` scores it (try --help after each).",
+        "`train` trains the detector (resumable), `evaluate` scores it, `replay` re-runs rejected grasp estimates saved by the node "
+        "(try --help after each).",
     )
     p.add_argument("tool", choices=sorted(PERCEPTION_TOOLS), help="tool to run")
     p.add_argument("args", nargs=argparse.REMAINDER, help="tool arguments (try --help)")

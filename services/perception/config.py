@@ -29,6 +29,10 @@ class NodeConfig:
     max_side_probe: float = 1.3
     track_gate: float = 0.2  # m: a detection this near a requested track is that track
     view_frames: int = 5  # fresh frames per camera a grasp request looks at for its target
+    # a folder: each rejected grasp estimate's inputs (depth, colour, box, K, camera pose,
+    # label, surface) are written there as .npz (``quadmanip perception replay`` reads
+    # them back), so a rejection seen live can be studied offline; "" writes nothing
+    save_rejected: str = ""
 
 
 @dataclass(frozen=True)

@@ -35,6 +35,7 @@ __all__ = [
     "DetectorConfig",
     "NetworkShape",
     "box_iou",
+    "rank_runner_ups",
     "reported",
     "decode",
     "encode_input",
@@ -67,6 +68,11 @@ class DetectorConfig:
     # One object, one report: a box overlapping a better-scored one of another class by
     # more than this IoU is that object's runner-up class, not a second object.
     overlap_iou: float = 0.6
+    # The same object's second guess (a box overlapping a better-scored box of another
+    # class by more than ``overlap_iou``) is scored x this, so that it ranks below the
+    # first guesses of its class: the CenterNet heads score each class alone, and the
+    # spoon/marker and clamp/toy-gun pairs often peak on the same object.
+    runner_up_scale: float = 0.7
     max_detections: int = 30
     threads: int = 1  # torch intra-op threads at run time (the node's budget is one core)
     classes: tuple[str, ...] = field(default_factory=tuple)  # empty: from the weights file
@@ -207,6 +213,18 @@ def reported(dets: list[Detection], threshold: float, overlap_iou: float) -> lis
     return keep
 
 
+def rank_runner_ups(dets: list[Detection], overlap_iou: float, scale: float) -> list[Detection]:
+    """Scores of second guesses x ``scale``: a box overlapping a better-scored box of
+    another class by more than ``overlap_iou`` (the same object, read as another class).
+    Unlike ``reported`` nothing is dropped, so a request for a class still finds its box."""
+    ranked = sorted(dets, key=lambda x: -x.score)
+    out = []
+    for i, d in enumerate(ranked):
+        second = any(b.label != d.label and box_iou(d.box, b.box) > overlap_iou for b in ranked[:i])
+        out.append(Detection(d.label, d.score * scale, d.box) if second else d)
+    return sorted(out, key=lambda x: -x.score)
+
+
 def load_checkpoint(path: Path) -> dict[str, Any]:
     """A weights file: ``{"model": state_dict, "classes": [...], "config": {...}, ...}``."""
     return torch.load(path, map_location="cpu", weights_only=False)
@@ -249,4 +267,6 @@ class Detector:
             box = (max(0.0, x0), max(0.0, y0), min(float(w), x1), min(float(h), y1))
             if box[2] > box[0] and box[3] > box[1]:
                 out.append(Detection(self.classes[cl], s, box))
+        if self.cfg.runner_up_scale < 1.0:
+            out = rank_runner_ups(out, self.cfg.overlap_iou, self.cfg.runner_up_scale)
         return out

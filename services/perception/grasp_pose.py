@@ -146,6 +146,7 @@ class GraspEstimate:
     surface_height: float = math.nan
     n_points: int = 0
     normal_z: float = math.nan
+    detail: str = ""  # a rejection's numbers, for the log and the operator
 
 
 # ------------------------------------------------------------------------------ helpers
@@ -483,9 +484,17 @@ def _vertical(
         # base axis, 4 cm across itself)
         xy = obj[:, :2] - obj[:, :2].mean(axis=0)
         axes_xy = np.linalg.svd(xy, full_matrices=False)[2]
-        narrow = float(np.ptp(xy @ axes_xy.T, axis=0).min()) <= cfg.max_width
+        narrowest = float(np.ptp(xy @ axes_xy.T, axis=0).min())
+        narrow = narrowest <= cfg.max_width
         if (not flat and not narrow) or height > cfg.tall_height:
-            return _reject(name, "probe horizontally", mass, n, probe="horizontal", **extra)
+            why = (
+                f"top normal z {normal_z:.2f} (flat >= {cfg.vertical_normal_z}), narrowest "
+                f"{narrowest:.3f} m (<= {cfg.max_width}), height {height:.3f} m "
+                f"(tall > {cfg.tall_height}), {n} points"
+            )
+            return _reject(
+                name, "probe horizontally", mass, n, probe="horizontal", detail=why, **extra
+            )
     cc = cfg.candidates
     lev = obj @ vertical_axes(up, 0.0).T
     axis = object_axis(lev[:, :2], cc)

@@ -31,6 +31,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 from quadmanip.common import messages as m
@@ -54,6 +55,7 @@ from quadmanip.services.perception.frames import (
 from quadmanip.services.perception.grasp_pose import GraspEstimate, estimate_grasp_from_depth
 from quadmanip.services.perception.handle_locator import locate_handle
 from quadmanip.services.perception.object_memory import CameraView, ObjectMemory, Observation
+from quadmanip.services.perception.rejections import save_rejection
 
 __all__ = ["PerceptionNode", "main"]
 
@@ -378,6 +380,27 @@ class PerceptionNode(Service):
         side = camera == FRONT_CAMERA
         return goal.max_distance or (node.max_side_probe if side else node.max_reach)
 
+    def _save_rejection(self, img: m.RgbdImage, det: Detection, where: str, reason: str) -> None:
+        try:
+            path = save_rejection(
+                Path(self.config.node.save_rejected),
+                stamp=img.stamp,
+                depth=img.depth,
+                rgb=img.rgb,
+                box=det.box,
+                K=img.K,
+                position=img.position,
+                orientation=img.orientation,
+                label=det.label,
+                camera=img.camera,
+                where=where,
+                probing="vertical" if img.camera == GRIPPER_CAMERA else "horizontal",
+                reason=reason,
+            )
+            self.log.info("rejected estimate saved", file=str(path))
+        except OSError as exc:  # a full disk must not turn a rejection into a crash
+            self.log.warning("cannot save a rejected estimate", error=repr(exc))
+
     def _grasp(self, handle: GoalHandle) -> m.Message:
         goal: m.GraspRequest = handle.goal  # type: ignore[assignment]
         cfg: PerceptionConfig = self.config
@@ -457,7 +480,11 @@ class PerceptionNode(Service):
         where = surface_of(loc, p.base, float(spec.size[2]) if spec is not None else 0.0)
         est = estimate(where)
         if not est.ok:
-            raise ActionFailed(f"{est.reason}: {det.label} in {img.camera}")
+            detail = f" ({est.detail})" if est.detail else ""
+            reason = f"{est.reason}: {det.label} in {img.camera}{detail}"
+            if cfg.node.save_rejected:
+                self._save_rejection(img, det, where, reason)
+            raise ActionFailed(reason)
         return m.GraspGoal(
             stamp=img.stamp,
             position=est.position,

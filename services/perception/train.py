@@ -43,7 +43,7 @@ from quadmanip.services.perception.detector import (
     encode_input,
 )
 
-__all__ = ["CocoFrames", "make_targets", "main", "train"]
+__all__ = ["CocoFrames", "make_targets", "main", "repeat_weights", "train"]
 
 CROP = (192, 256)  # h, w of training crops (the network is fully convolutional)
 
@@ -211,14 +211,35 @@ class _Batches(torch.utils.data.IterableDataset):
     """Endless augmented batches, in this process or in DataLoader workers (each its own
     random stream)."""
 
-    def __init__(self, data: CocoFrames, batch: int, seed: int, start: int) -> None:
+    def __init__(
+        self, data: CocoFrames, batch: int, seed: int, start: int, weights: np.ndarray | None
+    ) -> None:
         self.data, self.batch, self.seed, self.start = data, batch, seed, start
+        self.p = None if weights is None else weights / weights.sum()
 
     def __iter__(self) -> Any:
         info = torch.utils.data.get_worker_info()
         rng = np.random.default_rng([self.seed, self.start, info.id if info else 0])
         while True:
-            yield _batch(self.data, rng.integers(0, len(self.data), self.batch), rng)
+            yield _batch(self.data, rng.choice(len(self.data), self.batch, p=self.p), rng)
+
+
+def repeat_weights(data: CocoFrames, repeat: dict[str, float]) -> np.ndarray | None:
+    """Frame sampling weights for repeat-factor sampling (Gupta et al. 2019, LVIS): a frame
+    is drawn as often as the largest repeat factor of the classes it shows (1 for none).
+    It spends more of the schedule on classes the detector confuses (spoon and marker,
+    clamp and toy gun) without changing what a frame's labels say."""
+    if not repeat:
+        return None
+    unknown = set(repeat) - set(data.classes)
+    if unknown:
+        raise ValueError(f"--repeat: no class {sorted(unknown)} (classes: {data.classes})")
+    if any(f < 1.0 for f in repeat.values()):
+        raise ValueError("--repeat: factors are >= 1")
+    factor = np.ones(len(data.classes))
+    for name, f in repeat.items():
+        factor[data.classes.index(name)] = f
+    return np.array([max([1.0, *(factor[int(c)] for c in a[:, 0])]) for a in data.anns], np.float64)
 
 
 def _focal(logits: torch.Tensor, gt: torch.Tensor, ignore: torch.Tensor) -> torch.Tensor:
@@ -303,12 +324,16 @@ def train(
     device: str = "cpu",
     workers: int = 0,
     budget_minutes: float | None = None,
+    restart: bool = False,
+    repeat: dict[str, float] | None = None,
 ) -> dict[str, Any]:
     """Train (or resume) for ``iters`` iterations in all; returns the final state's card.
 
     ``budget_minutes`` replaces ``iters`` by what fits: after 100 iterations (or a
     minute) the rate is measured and the schedule's end set so that the whole call ends
-    within the budget."""
+    within the budget. ``restart`` starts a new cosine (warm-up included) at the resumed
+    iteration instead of following the old one to ``iters``; ``repeat`` draws frames
+    showing the named classes that many times as often (:func:`repeat_weights`)."""
     torch.set_num_threads(threads)
     torch.manual_seed(seed)
     torch.backends.cudnn.benchmark = device.startswith("cuda")
@@ -323,6 +348,7 @@ def train(
         net.load_state_dict(ck["model"])
         opt.load_state_dict(ck["optimizer"])
         state = {k: ck[k] for k in ("iteration", "train_minutes", "history")}
+        state["schedule_start"] = ck.get("schedule_start", 0)
         print(
             f"[train] resumed at iteration {state['iteration']} from {checkpoint}",
             file=log,
@@ -342,6 +368,7 @@ def train(
         "crop": list(CROP),
         "lr": lr,
         "iters_planned": iters,
+        "repeat": dict(repeat or {}),
     }
 
     def save(path: Path, with_opt: bool) -> None:
@@ -362,7 +389,7 @@ def train(
     t_start = time.monotonic()
     t_seg = t_start
     losses: list[float] = []
-    source = _Batches(data, batch, seed, state["iteration"])
+    source = _Batches(data, batch, seed, state["iteration"], repeat_weights(data, repeat or {}))
     batches = iter(
         torch.utils.data.DataLoader(
             source,
@@ -375,6 +402,9 @@ def train(
         else source
     )
     it0 = state["iteration"]
+    if restart:
+        state["schedule_start"] = it0  # kept in the checkpoint: a resumed part follows it
+    sched0 = state.get("schedule_start", 0)  # where the current cosine started
     try:
         while state["iteration"] < iters and not stop["now"]:
             it = state["iteration"]
@@ -388,7 +418,7 @@ def train(
                 card["iters_planned"] = iters
                 print(f"[train] {rate:.1f} it/s: the schedule ends at {iters}", file=log)
             for g in opt.param_groups:
-                g["lr"] = _lr(it, iters, lr, 200)
+                g["lr"] = _lr(it - sched0, iters - sched0, lr, 200)
             x, t = next(batches)
             x = x.to(device, non_blocking=True)
             t = {k: v.to(device, non_blocking=True) for k, v in t.items()}
@@ -408,7 +438,8 @@ def train(
                 print(
                     f"[train] it {state['iteration']}/{iters} loss {mean:.3f} "
                     + " ".join(f"{k} {v:.3f}" for k, v in parts.items())
-                    + f" lr {_lr(it, iters, lr, 200):.2e} {state['train_minutes']:.1f} min",
+                    + f" lr {_lr(it - sched0, iters - sched0, lr, 200):.2e}"
+                    + f" {state['train_minutes']:.1f} min",
                     file=log,
                     flush=True,
                 )
@@ -453,7 +484,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--budget-minutes", type=float, default=None, help="fit the schedule to this time"
     )
+    ap.add_argument(
+        "--restart", action="store_true", help="with --resume: a new cosine from the checkpoint"
+    )
+    ap.add_argument(
+        "--repeat",
+        nargs="*",
+        default=[],
+        metavar="CLASS=F",
+        help="draw frames showing CLASS F times as often (repeat-factor sampling)",
+    )
     args = ap.parse_args(argv)
+    try:
+        repeat = {k: float(v) for k, v in (r.split("=", 1) for r in args.repeat)}
+    except ValueError:
+        ap.error(f"--repeat takes CLASS=FACTOR, got {args.repeat}")
     if args.iters <= 0 or args.batch <= 0 or args.workers < 0:
         ap.error("--iters and --batch must be positive, --workers not negative")
     if args.device != "cpu" and not torch.cuda.is_available():
@@ -481,6 +526,8 @@ def main(argv: list[str] | None = None) -> int:
         device=args.device,
         workers=args.workers,
         budget_minutes=args.budget_minutes,
+        restart=args.restart,
+        repeat=repeat,
     )
     return 0
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -106,6 +107,39 @@ def test_decode_reads_back_a_box() -> None:
     np.testing.assert_allclose(box, [cx - 24, cy - 10, cx + 24, cy + 10], atol=1e-4)
 
 
+def test_a_second_guess_on_the_same_object_ranks_below_first_guesses() -> None:
+    spoon = det.Detection("spoon", 0.8, (10.0, 10.0, 40.0, 20.0))
+    marker_on_spoon = det.Detection("marker", 0.6, (11.0, 10.0, 41.0, 20.0))
+    marker = det.Detection("marker", 0.5, (100.0, 50.0, 130.0, 58.0))
+    spoon_elsewhere = det.Detection("spoon", 0.4, (200.0, 50.0, 230.0, 60.0))
+    out = det.rank_runner_ups([marker, spoon_elsewhere, marker_on_spoon, spoon], 0.6, 0.7)
+    by_box = {d.box: d for d in out}
+    assert by_box[marker_on_spoon.box].score == pytest.approx(0.42)  # below the real marker
+    assert by_box[marker.box].score == 0.5 and by_box[spoon.box].score == 0.8
+    assert by_box[spoon_elsewhere.box].score == 0.4  # apart: not a second guess
+    assert [d.score for d in out] == sorted((d.score for d in out), reverse=True)
+    # nothing is dropped: a request for the marker still finds that box
+    assert len(out) == 4
+
+
+def test_repeat_factor_sampling_weights_frames_by_their_classes() -> None:
+    data = SimpleNamespace(
+        classes=("spoon", "marker", "bowl"),
+        anns=[
+            np.array([[0, 1, 1, 5, 5, 0]], np.float32),  # a spoon
+            np.array([[2, 1, 1, 5, 5, 0], [1, 9, 9, 20, 12, 0]], np.float32),  # bowl, marker
+            np.zeros((0, 6), np.float32),  # nothing
+        ],
+    )
+    w = tr.repeat_weights(data, {"spoon": 2.0, "marker": 3.0})
+    np.testing.assert_allclose(w, [2.0, 3.0, 1.0])
+    assert tr.repeat_weights(data, {}) is None
+    with pytest.raises(ValueError, match="no class"):
+        tr.repeat_weights(data, {"fork": 2.0})
+    with pytest.raises(ValueError, match=">= 1"):
+        tr.repeat_weights(data, {"spoon": 0.5})
+
+
 def test_a_few_training_iterations_learn_and_resume(tmp_path: Path, scenes: SceneRenderer) -> None:
     data_dir = tmp_path / "data"
     w = DatasetWriter(data_dir, scenes.names)
@@ -124,12 +158,19 @@ def test_a_few_training_iterations_learn_and_resume(tmp_path: Path, scenes: Scen
     assert all(math.isfinite(v) for v in losses)
     more = tr.train(data, 6, 2, out, ck, resume=True, save_every=2, threads=1)
     assert more["iteration"] == 6 and more["train_minutes"] >= first["train_minutes"]
+    # a new cosine from the checkpoint, frames of one class drawn 3x: both recorded
+    name = scenes.names[int(data.anns[0][0, 0])]
+    again = tr.train(
+        data, 8, 2, out, ck, resume=True, save_every=2, threads=1, restart=True, repeat={name: 3.0}
+    )
+    assert again["schedule_start"] == 6 and again["card"]["repeat"] == {name: 3.0}
     # batches from a worker process, the schedule fitted to a time budget: after 100
     # iterations the rate sets the end, well short of the provisional 10**6
     fitted = tr.train(
         data, 10**6, 2, out, ck, resume=True, threads=1, workers=1, budget_minutes=0.05
     )
     assert 107 <= fitted["iteration"] == fitted["card"]["iters_planned"] < 10**6
+    assert fitted["schedule_start"] == 6  # a resumed part keeps the restarted cosine
     d = det.Detector(det.DetectorConfig(weights=str(out), score_threshold=0.0))
     assert d.classes == scenes.names
     found = d(scenes.render(0)[1].rgb, scenes.render(0)[1].depth)

@@ -18,6 +18,7 @@ import pytest
 from quadmanip.common.object_catalogue import load_catalogue
 from quadmanip.common.robot_description import GRASP_MAX_TILT, HORIZONTAL_GRASP_DEPTH
 from quadmanip.common.rotations import quat_from_axis_angle, quat_to_mat
+from quadmanip.services.perception import rejections
 from quadmanip.services.perception.grasp_candidates import (
     CandidateConfig,
     Candidates,
@@ -29,7 +30,11 @@ from quadmanip.services.perception.grasp_candidates import (
     narrowest_direction,
     select_candidate,
 )
-from quadmanip.services.perception.grasp_pose import GraspConfig, estimate_grasp
+from quadmanip.services.perception.grasp_pose import (
+    GraspConfig,
+    estimate_grasp,
+    estimate_grasp_from_depth,
+)
 from quadmanip.services.perception.height_map import (
     build_height_map,
     fill_holes,
@@ -43,6 +48,7 @@ from quadmanip.services.perception.outlier_filter import (
     two_means_split,
 )
 from quadmanip.services.perception.point_cloud import lift_box, to_odom
+from quadmanip.services.perception.rejections import replay, save_rejection
 
 pytestmark = pytest.mark.unit
 
@@ -483,3 +489,31 @@ def test_config_defaults_are_consistent():
     assert cfg.min_clearance < cfg.grasp_depth  # a low object is held above the floor
     assert cfg.max_width < cfg.candidates.finger_span
     assert cfg.height_map.margin >= 0.5 * cfg.candidates.finger_span  # tips fit in the map
+
+
+def test_a_rejected_estimate_saved_by_the_node_replays_the_same(cat, tmp_path):
+    # a cracker box standing on a table, seen straight down from 0.30 m above its top
+    h, w, f = 120, 160, 150.0
+    K = np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1.0]])
+    quat = np.array([0.0, 0.70710678, -0.70710678, 0.0])  # optical z = -base z
+    cam = np.array([0.36, 0.0, TABLE + 0.21 + 0.30])
+    depth = np.full((h, w), 0.51, np.float32)  # the table top
+    v, u = np.mgrid[0:h, 0:w]
+    # optical x = -base y, optical y = -base x: the box's 16 x 6 cm top, 0.30 m away
+    top = (np.abs((u - K[0, 2]) / f * 0.30) <= 0.03) & (np.abs((v - K[1, 2]) / f * 0.30) <= 0.08)
+    depth[top] = 0.30
+    rgb = np.zeros((h, w, 3), np.uint8)
+    box = (40.0, 10.0, 120.0, 110.0)
+    direct = estimate_grasp_from_depth(depth, box, K, cam, quat, "cracker_box", cat, where="table")
+    assert not direct.ok and direct.reason == "probe horizontally"
+    assert "height 0.21" in direct.detail  # the numbers that decided it
+    path = save_rejection(
+        tmp_path, stamp=12.5, depth=depth, rgb=rgb, box=box, K=K, position=cam,
+        orientation=quat, label="cracker_box", camera="gripper_camera", where="table",
+        probing="vertical", reason=direct.reason,
+    )  # fmt: skip
+    meta, again = replay(path)
+    assert meta["label"] == "cracker_box" and meta["where"] == "table"
+    assert (again.ok, again.reason, again.detail) == (direct.ok, direct.reason, direct.detail)
+    assert rejections.main([str(path), "--png", str(tmp_path / "png")]) == 0
+    assert (tmp_path / "png" / (path.stem + ".png")).exists()
