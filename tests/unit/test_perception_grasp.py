@@ -12,6 +12,7 @@ with numbers worked out by hand.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -210,6 +211,20 @@ def test_standing_cylinder_is_grasped_across_its_diameter_3cm_below_the_top(cat)
     # the 2 mm sample grid loses up to a sample at each end of a chord
     assert est.width == pytest.approx(0.066, abs=0.005)
     assert est.hang == pytest.approx(0.071, abs=0.002)
+
+
+def test_the_grippers_own_palm_in_the_box_is_not_part_of_a_table_object(cat):
+    # a soup can on a table; the box's lower edge reaches the palm, 7 cm below the camera
+    centre, cam = np.array([0.32, 0.0]), np.array([0.33, 0.0, 0.449])
+    pts = cylinder_cloud(centre, 0.033, 0.101, TABLE)
+    palm = np.column_stack([np.full(24, 0.316), np.linspace(-0.01, 0.014, 24), np.full(24, 0.377)])
+    est = estimate_grasp(np.vstack([pts, palm]), cam, "tomato_soup_can", cat, where="table")
+    assert est.ok, (est.reason, est.detail)  # not "probe horizontally" for a 28 cm object
+    np.testing.assert_allclose(est.position, [0.32, 0.0, TABLE + 0.101 - 0.03], atol=0.003)
+    off = GraspConfig(filter=replace(GraspConfig().filter, min_range=0.0))
+    worse = estimate_grasp(np.vstack([pts, palm]), cam, "tomato_soup_can", cat, where="table",
+                           cfg=off)  # fmt: skip
+    assert not worse.ok and worse.reason == "probe horizontally"
 
 
 def test_flared_bowl_is_pinched_at_the_wall_facing_the_robot(cat):
