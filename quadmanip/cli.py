@@ -327,8 +327,8 @@ def build_parser() -> argparse.ArgumentParser:
         "perception",
         help="detector tools: render a labelled dataset, train, evaluate, replay rejections",
         description="Perception tools: `dataset` renders labelled camera frames (COCO), "
-        "`train` trains the detector (resumable), `evaluate` scores it, `replay` re-runs rejected grasp estimates saved by the node "
-        "(try --help after each).",
+        "`train` trains the detector (resumable), `evaluate` scores it, `replay` re-runs "
+        "rejected grasp estimates saved by the node (try --help after each).",
     )
     p.add_argument("tool", choices=sorted(PERCEPTION_TOOLS), help="tool to run")
     p.add_argument("args", nargs=argparse.REMAINDER, help="tool arguments (try --help)")

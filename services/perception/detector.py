@@ -218,10 +218,27 @@ def rank_runner_ups(dets: list[Detection], overlap_iou: float, scale: float) -> 
     another class by more than ``overlap_iou`` (the same object, read as another class).
     Unlike ``reported`` nothing is dropped, so a request for a class still finds its box."""
     ranked = sorted(dets, key=lambda x: -x.score)
-    out = []
-    for i, d in enumerate(ranked):
-        second = any(b.label != d.label and box_iou(d.box, b.box) > overlap_iou for b in ranked[:i])
-        out.append(Detection(d.label, d.score * scale, d.box) if second else d)
+    if len(ranked) < 2:
+        return ranked
+    # every pair at once (this runs on every frame): IoU of box i with each better box j
+    b = np.array([d.box for d in ranked], dtype=float)
+    ix = np.clip(
+        np.minimum(b[:, None, 2], b[None, :, 2]) - np.maximum(b[:, None, 0], b[None, :, 0]), 0, None
+    )
+    iy = np.clip(
+        np.minimum(b[:, None, 3], b[None, :, 3]) - np.maximum(b[:, None, 1], b[None, :, 1]), 0, None
+    )
+    inter = ix * iy
+    area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    union = area[:, None] + area[None, :] - inter
+    iou = np.divide(inter, union, out=np.zeros_like(inter), where=union > 0)
+    labels = np.array([d.label for d in ranked])
+    better = np.tri(len(ranked), k=-1, dtype=bool)  # j ranked before i
+    second = ((iou > overlap_iou) & (labels[:, None] != labels[None, :]) & better).any(axis=1)
+    out = [
+        Detection(d.label, d.score * scale, d.box) if s else d
+        for d, s in zip(ranked, second, strict=True)
+    ]
     return sorted(out, key=lambda x: -x.score)
 
 

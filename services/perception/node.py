@@ -380,7 +380,9 @@ class PerceptionNode(Service):
         side = camera == FRONT_CAMERA
         return goal.max_distance or (node.max_side_probe if side else node.max_reach)
 
-    def _save_rejection(self, img: m.RgbdImage, det: Detection, where: str, reason: str) -> None:
+    def _save_rejection(
+        self, img: m.RgbdImage, det: Detection, where: str, probing: str, reason: str
+    ) -> None:
         try:
             path = save_rejection(
                 Path(self.config.node.save_rejected),
@@ -394,7 +396,7 @@ class PerceptionNode(Service):
                 label=det.label,
                 camera=img.camera,
                 where=where,
-                probing="vertical" if img.camera == GRIPPER_CAMERA else "horizontal",
+                probing=probing,
                 reason=reason,
             )
             self.log.info("rejected estimate saved", file=str(path))
@@ -459,6 +461,7 @@ class PerceptionNode(Service):
         if loc is not None and loc.distance > reach:
             raise ActionFailed(f"too far: {det.label} {loc.distance:.2f} m away (reach {reach} m)")
         img = p.img
+        probing = "vertical" if img.camera == GRIPPER_CAMERA else "horizontal"
 
         def estimate(where: str) -> GraspEstimate:
             return estimate_grasp_from_depth(
@@ -469,7 +472,7 @@ class PerceptionNode(Service):
                 img.orientation,
                 det.label,
                 self.catalogue,
-                probing="vertical" if img.camera == GRIPPER_CAMERA else "horizontal",
+                probing=probing,
                 where=where,
                 cfg=cfg.grasp,
             )
@@ -483,7 +486,7 @@ class PerceptionNode(Service):
             detail = f" ({est.detail})" if est.detail else ""
             reason = f"{est.reason}: {det.label} in {img.camera}{detail}"
             if cfg.node.save_rejected:
-                self._save_rejection(img, det, where, reason)
+                self._save_rejection(img, det, where, probing, reason)
             raise ActionFailed(reason)
         return m.GraspGoal(
             stamp=img.stamp,

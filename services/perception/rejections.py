@@ -62,7 +62,7 @@ def save_rejection(
                 "where": where,
                 "probing": probing,
                 "reason": reason,
-            }  # fmt: skip
+            }
         ),
     )
     return path

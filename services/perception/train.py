@@ -417,8 +417,9 @@ def train(
                 budget_minutes = None  # measured once
                 card["iters_planned"] = iters
                 print(f"[train] {rate:.1f} it/s: the schedule ends at {iters}", file=log)
+            lr_now = _lr(it - sched0, iters - sched0, lr, 200)
             for g in opt.param_groups:
-                g["lr"] = _lr(it - sched0, iters - sched0, lr, 200)
+                g["lr"] = lr_now
             x, t = next(batches)
             x = x.to(device, non_blocking=True)
             t = {k: v.to(device, non_blocking=True) for k, v in t.items()}
@@ -438,8 +439,7 @@ def train(
                 print(
                     f"[train] it {state['iteration']}/{iters} loss {mean:.3f} "
                     + " ".join(f"{k} {v:.3f}" for k, v in parts.items())
-                    + f" lr {_lr(it - sched0, iters - sched0, lr, 200):.2e}"
-                    + f" {state['train_minutes']:.1f} min",
+                    + f" lr {lr_now:.2e} {state['train_minutes']:.1f} min",
                     file=log,
                     flush=True,
                 )
