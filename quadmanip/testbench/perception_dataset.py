@@ -11,8 +11,9 @@ seed, one randomised scene from both robot cameras and writes a COCO dataset:
   catalogue's 18 objects, ids 1-18 in catalogue order).
 
 A scene is the robot, standing, in one of the paper's search or probing postures (Figs. 5, 12:
-``floor_search``, ``table_search``, ``probe_floor``, ``probe_table``, ``probe_horizontal``)
-somewhere in the house, with several catalogue objects resting on the floor or a table in
+``floor_search``, ``table_search``, ``probe_floor``, ``probe_table``, ``probe_horizontal``,
+``probe_tall``: the trunk's nose lifted 0.25 rad, 0.35-0.75 m farther from the table,
+mostly a tall box in front) somewhere in the house, with several catalogue objects resting on the floor or a table in
 front of it at random yaw, random floor, table and wall colours and lighting, a little base
 height and pitch, and depth degraded like a structured-light/ToF camera's (depth-dependent
 noise, lost returns at depth edges and in speckles). Poses are written straight into the
@@ -55,8 +56,17 @@ MODES: dict[str, str] = {
     "probe_table": rd.GRIPPER_CAMERA,
     "table_search": rd.FRONT_CAMERA,
     "probe_horizontal": rd.FRONT_CAMERA,
+    "probe_tall": rd.FRONT_CAMERA,
 }
+# the modes a seed draws from; ``probe_tall`` is half of the ``probe_horizontal`` draws
+# (its own random stream, so every other seed's scene is what it was before it existed)
+DRAWN_MODES = ("probe_floor", "floor_search", "probe_table", "table_search", "probe_horizontal")
 MODE_WEIGHTS = np.array([0.25, 0.25, 0.15, 0.2, 0.15])
+TALL_SHARE = 0.5  # of probe_horizontal scenes, shown as probe_tall
+TALL_BACK = (0.35, 0.75)  # m: a probe_tall stance is this much farther from the table edge
+TALL_PITCH_NOISE = 0.05  # rad about the posture's body pitch
+TALL_FIRST = 0.7  # share of probe_tall scenes whose object in front is a tall one
+TALL_HEIGHT = 0.12  # m: what counts as tall (the task's ``tall``)
 CAMERAS = (rd.FRONT_CAMERA, rd.GRIPPER_CAMERA)
 PARK = (60.0, 60.0)  # objects not in a scene wait here, far outside the house
 MIN_PIXELS = 60  # fewer visible pixels: labelled but ignored (iscrowd)
@@ -149,6 +159,7 @@ class SceneRenderer:
         self.renderer = RgbdRenderer(m, {c: CameraConfig() for c in CAMERAS})
         cfg = load_manipulation_config()
         self.postures = resolve_postures(ArmGeometry.from_description(), cfg)
+        self.body_pitch = {n: p.body_pitch for n, p in cfg.postures.items()}
         joints = rd.joint_qpos_indices(m)
         self.arm_adr, self.leg_adr = joints[-4:], joints[:-4]
         self.free_adr = rd.free_joint_qpos_index(m)
@@ -215,6 +226,16 @@ class SceneRenderer:
             self.data.qpos[adr : adr + 3] = [x, y, z + self.cat.objects[name].size[2] / 2]
             self.data.qpos[adr + 3 : adr + 7] = quat_from_yaw(float(rng.uniform(-math.pi, math.pi)))
 
+    def scene_mode(self, seed: int) -> str:
+        """The posture scene ``seed`` shows (cheap: no posing, no rendering)."""
+        mode = str(np.random.default_rng([seed, 0xDA7A]).choice(DRAWN_MODES, p=MODE_WEIGHTS))
+        if (
+            mode == "probe_horizontal"
+            and np.random.default_rng([seed, 0x7A11]).random() < TALL_SHARE
+        ):
+            return "probe_tall"
+        return mode
+
     def pose_scene(self, seed: int) -> str:
         """Pose robot, arm, objects, colours and lights for ``seed``; returns the mode."""
         rng = np.random.default_rng([seed, 0xDA7A])
@@ -224,8 +245,16 @@ class SceneRenderer:
         for i, n in enumerate(self.names):
             adr = self.obj_adr[n]
             d.qpos[adr : adr + 3] = [PARK[0] + 2.0 * i, PARK[1], 1.0]
-        mode = str(rng.choice(list(MODES), p=MODE_WEIGHTS))
+        mode = str(rng.choice(DRAWN_MODES, p=MODE_WEIGHTS))
         order = [str(n) for n in rng.permutation(self.names)]
+        # probe_tall (a draw of its own stream): the trunk's nose lifted, from farther back
+        tall_rng = np.random.default_rng([seed, 0x7A11])
+        tall = mode == "probe_horizontal" and tall_rng.random() < TALL_SHARE
+        if tall and tall_rng.random() < TALL_FIRST:
+            high = [n for n in order if self.cat.objects[n].size[2] > TALL_HEIGHT]
+            first = high[int(tall_rng.integers(len(high)))]
+            order.remove(first)
+            order.insert(0, first)
         placed: list[tuple[str, float, float, float]] = []
         if mode in ("probe_floor", "floor_search"):
             x, y, yaw = self._robot_on_floor(rng)
@@ -251,6 +280,11 @@ class SceneRenderer:
         else:
             t = self.tables[int(rng.integers(len(self.tables)))]
             x, y, yaw, edge_pt, inward = self._robot_at_table(rng, t)
+            if tall:
+                back = float(tall_rng.uniform(*TALL_BACK))
+                bx, by = x - back * float(inward[0]), y - back * float(inward[1])
+                if self._robot_fits(bx, by):
+                    x, y, mode = bx, by, "probe_tall"
             along = np.array([-inward[1], inward[0]])
             if mode == "table_search":
                 n_near = 2 + int(rng.integers(0, 5))
@@ -288,8 +322,11 @@ class SceneRenderer:
         d.qpos[self.leg_adr] = self.stand_legs + rng.normal(0.0, 0.08, len(self.leg_adr))
         lo, hi = self.finger_range[:, 0], self.finger_range[:, 1]
         d.qpos[self.finger_adr] = lo + rng.uniform() * (hi - lo)
+        pitch = float(rng.uniform(-0.08, 0.08))
+        if mode == "probe_tall":
+            pitch = self.body_pitch[mode] + float(tall_rng.uniform(-1.0, 1.0)) * TALL_PITCH_NOISE
         tilt = quat_mul(
-            quat_from_axis_angle(np.array([0.0, 1.0, 0.0]), float(rng.uniform(-0.08, 0.08))),
+            quat_from_axis_angle(np.array([0.0, 1.0, 0.0]), pitch),
             quat_from_axis_angle(np.array([1.0, 0.0, 0.0]), float(rng.uniform(-0.03, 0.03))),
         )
         d.qpos[fa + 3 : fa + 7] = quat_mul(quat_from_yaw(yaw), tilt)
@@ -450,7 +487,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=parse_seeds, required=True, help="scene seeds: A:B, A,B,C")
     ap.add_argument("--out", type=Path, required=True, help="output folder")
     ap.add_argument("--no-noise", action="store_true", help="keep the perfect depth")
+    ap.add_argument(
+        "--modes",
+        type=lambda t: tuple(t.split(",")),
+        default=tuple(MODES),
+        help=f"keep only scenes of these postures (comma-separated; of {', '.join(MODES)})",
+    )
     args = ap.parse_args(argv)
+    unknown = sorted(set(args.modes) - set(MODES))
+    if unknown:
+        print(f"unknown --modes {', '.join(unknown)} (known: {', '.join(MODES)})", file=sys.stderr)
+        return 2
     if (args.out / "annotations.json").exists():
         print(f"{args.out} already holds a dataset; choose another --out", file=sys.stderr)
         return 2
@@ -460,7 +507,13 @@ def main(argv: list[str] | None = None) -> int:
     kept = 0
     try:
         for i, seed in enumerate(args.seeds):
-            for f in scenes.render(seed, noise=not args.no_noise):
+            # (a probe_tall stance that does not fit in the room shows as probe_horizontal)
+            frames = (
+                scenes.render(seed, noise=not args.no_noise)
+                if scenes.scene_mode(seed) in args.modes
+                else []
+            )
+            for f in frames:
                 if f.labels or np.random.default_rng([seed, len(f.camera)]).random() < EMPTY_KEEP:
                     writer.add(f, seed)
                     kept += 1

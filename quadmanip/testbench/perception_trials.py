@@ -9,8 +9,9 @@ ground-truth trials do; navigation is a separate service); then it only asks:
 
 1. ``move_to_posture`` to the probing posture (Fig. 5: ``probe_floor``, ``probe_table``,
    or ``probe_horizontal`` for objects taller than 12 cm on a table; for those the robot
-   first steps ``SIDE_PROBE_BACK_M`` back, because the front camera sits below the table
-   top, and after the estimate steps in again: the estimate is carried over to the new
+   first steps :func:`side_probe_back` back, because the front camera sits below the
+   table top, and takes the posture there (it lifts the trunk's nose: walking levels
+   it); after the estimate it steps in again: the estimate is carried over to the new
    stance by odometry);
 2. perception's ``estimate_grasp`` for the object's class, from the gripper camera
    (vertical probing) or the front camera (horizontal);
@@ -60,7 +61,15 @@ from quadmanip.testbench.stack_trials import (
 __all__ = ["grasp_error", "run_perception_drawer_trial", "run_perception_grasp_trial"]
 
 STACK = (*SERVICES, "perception")
-SIDE_PROBE_BACK_M = 0.70  # horizontal probing: this much farther back than the grasp stance
+
+
+def side_probe_back() -> float:
+    """How much farther back than the grasp stance a horizontal probe stands: the tidy-up
+    task's ``side_probe_back`` (configs/behavior.toml), so both probe alike."""
+    from quadmanip.common.config import load_config
+    from quadmanip.services.behavior.config import BehaviorConfig
+
+    return load_config(BehaviorConfig, "behavior").task.side_probe_back
 
 
 def carried_over(goal: m.GraspGoal, then: m.Odometry, now: m.Odometry) -> m.GraspGoal:
@@ -79,7 +88,7 @@ HANDLE_HINT_M = 0.08  # the approximate handle position is off by up to this (m)
 def probing(approach: str, where: str) -> tuple[str, str]:
     """(posture, camera) that probe an object for ``approach`` (paper Fig. 5)."""
     if approach == "horizontal":
-        return "probe_horizontal", "front_camera"
+        return "probe_tall", "front_camera"
     return ("probe_floor" if where == "floor" else "probe_table"), "gripper_camera"
 
 
@@ -130,17 +139,18 @@ def run_perception_grasp_trial(
                 res["walked"] = True
             out = None
             tries: list[dict[str, Any]] = []
+            back = side_probe_back()
             for attempt in range(3):
-                p_out = s.posture(posture)
-                if not p_out.ok:
-                    res.update(success=False, status="posture_failed", reason=p_out.reason)
-                    break
                 _, _, heading = s.base_frame()
                 if approach == "horizontal":
                     # the front camera sits below the table top: probe from farther back
                     # (the paper's "adjusts its position"), then step in to grasp
                     s.face(world_of(gt.position_base)[:2], heading, float(gt.position_base[0])
-                           + SIDE_PROBE_BACK_M, tol=0.02)  # fmt: skip
+                           + back, tol=0.02)  # fmt: skip
+                p_out = s.posture(posture)
+                if not p_out.ok:
+                    res.update(success=False, status="posture_failed", reason=p_out.reason)
+                    break
                 est = s.act(
                     "estimate_grasp",
                     m.GraspRequest(stamp=s.now(), label=name, camera=camera),  # type: ignore[arg-type]
@@ -159,7 +169,7 @@ def run_perception_grasp_trial(
                     seen_from = odom.get()
                     target = world_of(goal.position)[:2]
                     s.face(target, heading, float(np.clip(goal.position[0]
-                                                          - SIDE_PROBE_BACK_M, *AHEAD)))  # fmt: skip
+                                                          - back, *AHEAD)))  # fmt: skip
                     goal = carried_over(goal, seen_from, odom.get())
                     # what stepping in (odometry's drift) added to the estimate's error
                     tries[-1]["pos_err_stepped_m"] = grasp_error(goal, truth())[0]

@@ -24,11 +24,13 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 from quadmanip.common import robot_description as rd
+from quadmanip.common.rotations import mat_to_quat, quat_from_axis_angle, quat_mul, rot_z
 from quadmanip.sim.sensors import CameraConfig, RgbdRenderer
 from quadmanip.sim.world.builder import World, build_world
 from quadmanip.sim.world.house import load_house
 from quadmanip.sim.world.objects import Catalogue, load_catalogue
 from quadmanip.testbench.manipulation_scenes import GraspSpec, grasp_from_poses
+from quadmanip.testbench.perception_trials import side_probe_back
 from quadmanip.testbench.stack_trials import GRASP_TABLE, approach_for, grasp_scenario
 
 __all__ = ["ProbeView", "probe_posture", "render_probe_view"]
@@ -70,31 +72,39 @@ def probe_posture(cat: Catalogue, name: str, where: str) -> tuple[str, str, str]
     if where == "floor":
         return "probe_floor", rd.GRIPPER_CAMERA, "vertical"
     if approach_for(cat, name, where) == "horizontal":
-        return "probe_horizontal", rd.FRONT_CAMERA, "horizontal"
+        return "probe_tall", rd.FRONT_CAMERA, "horizontal"
     return "probe_table", rd.GRIPPER_CAMERA, "vertical"
 
 
-_POSTURES: dict[str, np.ndarray] | None = None
+_POSTURES: dict[str, tuple[np.ndarray, float]] | None = None
 
 
-def _postures() -> dict[str, np.ndarray]:
+def _postures() -> dict[str, tuple[np.ndarray, float]]:
+    """Posture name -> (arm joints, trunk pitch) from the manipulation config."""
     global _POSTURES
     if _POSTURES is None:
         from quadmanip.services.manipulation.arm_kinematics import ArmGeometry
         from quadmanip.services.manipulation.config import load_manipulation_config
         from quadmanip.services.manipulation.postures import resolve_postures
 
-        _POSTURES = resolve_postures(ArmGeometry.from_description(), load_manipulation_config())
+        cfg = load_manipulation_config()
+        joints = resolve_postures(ArmGeometry.from_description(), cfg)
+        _POSTURES = {n: (q, cfg.postures[n].body_pitch) for n, q in joints.items()}
     return _POSTURES
 
 
-def _stand(world: World, data: mujoco.MjData, arm_q: np.ndarray) -> None:
-    """Robot standing at its home keyframe where the scenario put it, arm at ``arm_q``."""
+def _stand(world: World, data: mujoco.MjData, arm_q: np.ndarray, pitch: float = 0.0) -> None:
+    """Robot standing at its home keyframe where the scenario put it, arm at ``arm_q``,
+    the trunk pitched by ``pitch`` (locomotion's sign: negative lifts the nose) about
+    the base origin."""
     m = world.model
     home = rd.home_qpos()
     rm = rd.load_mujoco_model()
     adr = m.jnt_qposadr[m.joint(rd.FREE_JOINT).id]
     data.qpos[adr + 2] = home[rd.free_joint_qpos_index(rm) + 2]
+    data.qpos[adr + 3 : adr + 7] = quat_mul(
+        data.qpos[adr + 3 : adr + 7], quat_from_axis_angle(np.array([0.0, 1.0, 0.0]), pitch)
+    )
     for j in rd.LEG_JOINTS:
         data.qpos[m.jnt_qposadr[m.joint(j).id]] = home[rm.jnt_qposadr[rm.joint(j).id]]
     for j, q in zip(rd.ARM_JOINTS, arm_q, strict=True):
@@ -120,10 +130,13 @@ def render_probe_view(
     seed: int,
     catalogue: Catalogue | None = None,
     camera_config: CameraConfig | None = None,
-    standoff: float = 0.70,
+    standoff: float | None = None,
 ) -> ProbeView:
     """Render the probing view of object ``name`` on the ``where`` ('floor'/'table') of the
-    grasp trial ``seed``, with ground truth for scoring."""
+    grasp trial ``seed``, with ground truth for scoring. A horizontal probe stands
+    ``standoff`` (default: the task's ``side_probe_back``) behind the grasp stance."""
+    if standoff is None:
+        standoff = side_probe_back()
     cat = catalogue or load_catalogue()
     house = load_house()
     scn = grasp_scenario(name, where, seed, house, cat)
@@ -137,7 +150,7 @@ def render_probe_view(
         scn = dataclasses.replace(scn, robot_start=back)
     world = build_world(scn, house=house, catalogue=cat)
     data = world.initial_data()
-    _stand(world, data, _postures()[posture])
+    _stand(world, data, *_postures()[posture])
     renderer = RgbdRenderer(world.model, {camera: camera_config or CameraConfig()})
     try:
         frame = renderer.render(data, camera)
@@ -149,7 +162,11 @@ def render_probe_view(
     mask = np.isin(seg, obj_geoms) & (frame.depth > 0)
     base = world.model.body(rd.BASE_BODY).id
     base_pos = data.xpos[base].copy()
-    base_rot = data.xmat[base].reshape(3, 3).copy()
+    # the level body frame (the heading only), as the node uses (perception.frames
+    # .level_frame) and the live trials score in: a pitched trunk's probe is not tilted
+    r_wb = data.xmat[base].reshape(3, 3)
+    base_rot = rot_z(math.atan2(r_wb[1, 0], r_wb[0, 0]))
+    tilt = base_rot.T @ r_wb  # level <- base
     obj_pos = data.xpos[bid].copy()
     obj_rot = data.xmat[bid].reshape(3, 3).copy()
     surface_z = 0.0
@@ -167,8 +184,8 @@ def render_probe_view(
         rgb=frame.rgb,
         depth=frame.depth,
         K=frame.K,
-        cam_position=frame.position,
-        cam_orientation=frame.orientation,
+        cam_position=tilt @ frame.position,
+        cam_orientation=quat_mul(mat_to_quat(tilt), frame.orientation),
         mask=mask,
         box=_box(mask),
         obj_position=obj_pos,

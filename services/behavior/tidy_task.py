@@ -250,10 +250,10 @@ class TaskConfig:
     tall: float = 0.12  # m: table objects taller than this are probed from the side
     probe_floor_posture: str = "probe_floor"
     probe_table_posture: str = "probe_table"
-    probe_side_posture: str = "probe_horizontal"
+    probe_side_posture: str = "probe_tall"
     probe_standoff: float = 0.36  # m: object centre ahead of the base to probe and grasp
     grasp_ahead: tuple[float, float] = (0.33, 0.40)  # m: a grasp point in this band is reachable
-    side_probe_back: float = 0.70  # m farther back for the front camera (below a table top)
+    side_probe_back: float = 0.50  # m farther back for the front camera (below a table top)
     step_back: float = 0.08  # m stepped back when the arm is too close
     step_closer: float = 0.05  # m stepped in when it is too far
     reach_resolution: float = 0.01  # m: a narrower band of refused stances is given up

@@ -53,6 +53,12 @@ class PostureSpec:
     # then lies across the body. A spoon held by its bowl otherwise carried its 13 cm
     # handle back into the front legs and was levered out of the grip.
     held_across: bool = False
+    # Trunk pitch held in this posture (rad, locomotion's sign: negative lifts the nose).
+    # Probing a tall box on a table from the side, the front camera (below the table top)
+    # saw the sugar and cracker boxes cut by the image's top edge from 0.7 m back and
+    # detected neither in 6 trials; nose up 0.25 rad from 0.5 m back, both are whole in
+    # the frame. Any other primitive levels the trunk first.
+    body_pitch: float = 0.0
 
 
 @dataclass(frozen=True)

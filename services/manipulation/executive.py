@@ -382,8 +382,15 @@ class Executive:
             if request.posture not in self.postures:
                 known = ", ".join(sorted(self.postures))
                 raise GraspRejected("unknown_posture", f"{request.posture!r} (known: {known})")
-            held_across = cfg.postures[request.posture].held_across
-            return PostureMove(self.geom, cfg, self.postures[request.posture], held_across, **kw)
+            spec = cfg.postures[request.posture]
+            return PostureMove(
+                self.geom,
+                cfg,
+                self.postures[request.posture],
+                spec.held_across,
+                body_pitch=spec.body_pitch,
+                **kw,
+            )
         if isinstance(request, GraspRequest):
             if self.monitor.holding:
                 # the pre-grasp opening would drop it wherever the arm is (paper-5: a soup

@@ -191,7 +191,11 @@ class ManipulationNode(Service):
             elif isinstance(c, BodyPoseRequest):
                 self.pub_body.publish(
                     m.BodyPoseCommand(
-                        stamp=stamp, x_offset=c.x_offset, y_offset=c.y_offset, z_offset=c.z_offset
+                        stamp=stamp,
+                        x_offset=c.x_offset,
+                        y_offset=c.y_offset,
+                        z_offset=c.z_offset,
+                        pitch=c.pitch,
                     )
                 )
             elif isinstance(c, PayloadUpdate):

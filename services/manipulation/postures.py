@@ -19,6 +19,7 @@ REQUIRED_POSTURES: tuple[str, ...] = (
     "probe_floor",
     "probe_table",
     "probe_horizontal",
+    "probe_tall",
     "carry",
     "stow",
 )

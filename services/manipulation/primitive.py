@@ -72,11 +72,16 @@ class GripperCmd:
 
 @dataclass(frozen=True)
 class BodyPoseRequest:
-    """Body offsets from the nominal standing pose (m), sent to locomotion (moveCOM)."""
+    """Body offsets from the nominal standing pose (m), sent to locomotion (moveCOM), and
+    the trunk's pitch (rad about the body y axis, locomotion's sign: negative lifts the
+    nose). Only a posture pitches the trunk (``PostureSpec.body_pitch``); every other
+    primitive levels it first, since grasps, places and drawers are planned for a level
+    trunk."""
 
     x_offset: float = 0.0
     y_offset: float = 0.0
     z_offset: float = 0.0
+    pitch: float = 0.0
 
 
 Command = ArmCommand | GripperCmd | BodyPoseRequest
@@ -144,6 +149,15 @@ class Primitive:
         raise NotImplementedError
         yield []
 
+    def _leveled_script(self) -> Script:
+        """:meth:`script`, after levelling a trunk a posture left pitched."""
+        if self.body.pitch != 0.0 and not isinstance(self, PostureMove):
+            b = self.body
+            self.stage("levelling the trunk", None)
+            yield from self.move_body(b.x_offset, b.y_offset, b.z_offset)
+            self._body0 = self.body
+        yield from self.script()
+
     def step(self, obs: Observation) -> list[Command]:
         """Advances the state machine by one observation; returns commands to send."""
         if self.status is not Status.RUNNING:
@@ -156,7 +170,7 @@ class Primitive:
         try:
             if self._gen is None:
                 self.t_start = obs.t
-                self._gen = self.script()
+                self._gen = self._leveled_script()
                 cmds = next(self._gen)
             else:
                 cmds = self._gen.send(obs)
@@ -315,9 +329,12 @@ class Primitive:
             if obs.t >= t_end:
                 return
 
-    def move_body(self, x: float = 0.0, y: float = 0.0, z: float = 0.0) -> Script:
-        """Requests a body offset (moveCOM) and gives locomotion time to reach it."""
-        new = BodyPoseRequest(x_offset=x, y_offset=y, z_offset=z)
+    def move_body(
+        self, x: float = 0.0, y: float = 0.0, z: float = 0.0, pitch: float = 0.0
+    ) -> Script:
+        """Requests a body offset (moveCOM) and trunk pitch and gives locomotion time to
+        reach it."""
+        new = BodyPoseRequest(x_offset=x, y_offset=y, z_offset=z, pitch=pitch)
         if new == self.body:
             return
         self.body = new
@@ -367,11 +384,13 @@ class PostureMove(Primitive):
         cfg: ManipulationConfig,
         q_goal: np.ndarray,
         held_across: bool = False,
+        body_pitch: float = 0.0,
         **kw: Any,
     ) -> None:
         super().__init__(geom, cfg, **kw)
         self.q_goal = np.asarray(q_goal, dtype=float)
         self.held_across = held_across  # see PostureSpec.held_across
+        self.body_pitch = float(body_pitch)  # see PostureSpec.body_pitch
         if self.monitor.holding:  # gentler with an object in the gripper
             s = cfg.motion.holding_speed_scale
             v, a = np.asarray(cfg.motion.v_max), np.asarray(cfg.motion.a_max)
@@ -390,7 +409,17 @@ class PostureMove(Primitive):
         return q
 
     def script(self):  # noqa: ANN201 - generator type from Primitive
-        """One synchronised quintic move."""
+        """One synchronised quintic move; the trunk pitches to the posture's
+        ``body_pitch`` meanwhile (it is given ``body_settle_time`` from the request)."""
         self.stage("moving", 0.1)
         obs = yield []
+        b = self.body
+        if b.pitch != self.body_pitch:
+            self.body = BodyPoseRequest(b.x_offset, b.y_offset, b.z_offset, self.body_pitch)
+            obs = yield [self.body]
+            settled = obs.t + self.cfg.grasp.body_settle_time
+            yield from self.move_joints(self.goal_for(float(obs.q_arm[3])))
+            if self._last_obs is not None and self._last_obs.t < settled:
+                yield from self.wait(settled - self._last_obs.t)
+            return
         yield from self.move_joints(self.goal_for(float(obs.q_arm[3])))

@@ -58,7 +58,7 @@ PLACES = load_places(CONFIG_DIR / "maps" / "house.places.toml")
 CATALOGUE = load_catalogue()
 CLASSES = classes_from_catalogue(CATALOGUE)
 FLOOR_LOOKS = ("floor_search", "probe_floor")
-TABLE_LOOKS = ("table_search", "probe_table", "probe_horizontal")
+TABLE_LOOKS = ("table_search", "probe_table", "probe_horizontal", "probe_tall")
 START = (0.8, 1.2, 0.0)
 
 

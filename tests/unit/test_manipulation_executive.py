@@ -27,7 +27,12 @@ from quadmanip.services.manipulation.executive import (
 from quadmanip.services.manipulation.gravity import GravityCompensator
 from quadmanip.services.manipulation.gripper import GripState
 from quadmanip.services.manipulation.postures import resolve_postures
-from quadmanip.services.manipulation.primitive import GripperCmd, Observation, Status
+from quadmanip.services.manipulation.primitive import (
+    BodyPoseRequest,
+    GripperCmd,
+    Observation,
+    Status,
+)
 from quadmanip.sim.actuators import hermite
 
 pytestmark = pytest.mark.unit
@@ -187,6 +192,44 @@ def test_grasp_runs_announces_its_payload_and_measures_the_hang():
         ex2.start()
         plant2.run(ex2)
         assert ex2.hang == pytest.approx(want or CFG.executive.default_hang)
+
+
+def test_a_pitched_posture_lifts_the_nose_and_the_next_grasp_levels_the_trunk_first():
+    """PostureSpec.body_pitch: probe_tall asks locomotion for its trunk pitch (and waits
+    for it to settle); a grasp planned for a level trunk first asks for pitch 0, before
+    its first arm move, and a posture without a pitch levels it too."""
+    pitch = CFG.postures["probe_tall"].body_pitch
+    assert pitch < -0.1  # nose up
+    ex = _executive()
+    plant = Plant(POSTURES["stow"])
+    t0 = plant.t
+    assert ex.accept(PostureRequest("probe_tall"), plant.obs()).accepted
+    ex.start()
+    plant.run(ex)
+    bodies = [c for c in plant.sent if isinstance(c, BodyPoseRequest)]
+    assert [b.pitch for b in bodies] == [pitch]
+    assert ex.body.pitch == pitch
+    assert plant.t - t0 >= CFG.grasp.body_settle_time  # it waited for the trunk
+    np.testing.assert_allclose(plant.obs().q_arm, POSTURES["probe_tall"], atol=1e-6)
+
+    plant.sent.clear()
+    req = _floor_grasp(ex)
+    assert ex.accept(req, plant.obs()).accepted
+    ex.start()
+    plant.run(ex)
+    first_arm = next(i for i, c in enumerate(plant.sent) if isinstance(c, ArmServo))
+    level = [i for i, c in enumerate(plant.sent) if isinstance(c, BodyPoseRequest)]
+    assert level and level[0] < first_arm
+    assert plant.sent[level[0]].pitch == 0.0  # type: ignore[attr-defined]
+    assert all(c.pitch == 0.0 for c in plant.sent if isinstance(c, BodyPoseRequest))
+    assert ex.body.pitch == 0.0
+
+    for name, want in (("probe_tall", [pitch]), ("stow", [0.0]), ("probe_table", [])):
+        plant.sent.clear()
+        assert ex.accept(PostureRequest(name), plant.obs()).accepted
+        ex.start()
+        plant.run(ex)
+        assert [c.pitch for c in plant.sent if isinstance(c, BodyPoseRequest)] == want
 
 
 def test_two_goals_at_once_one_accepted_one_busy(monkeypatch):

@@ -130,6 +130,19 @@ def test_postures_from_config(geom, cfg):
     assert np.allclose(postures["stow"], [-math.pi / 2, math.pi / 2, 0, 0], atol=1e-5)
 
 
+def test_posture_pitches_are_ones_locomotion_accepts(cfg):
+    """A body pitch beyond locomotion's limit would be refused there (a log line) and the
+    posture would look from a level trunk; only the tall-box probe lifts the nose."""
+    from quadmanip.services.locomotion.controller import load_locomotion_config
+
+    limit = load_locomotion_config().limits.pitch
+    pitched = {n for n, p in cfg.postures.items() if p.body_pitch != 0.0}
+    assert pitched == {"probe_tall"}
+    assert all(abs(p.body_pitch) <= limit for p in cfg.postures.values())
+    tall, side = cfg.postures["probe_tall"], cfg.postures["probe_horizontal"]
+    assert tall.tcp == side.tcp and tall.body_pitch < 0.0  # the same arm, nose up
+
+
 def test_unknown_config_key_is_an_error(tmp_path):
     bad = tmp_path / "m.toml"
     bad.write_text("[motion]\nv_maxx = [1.0, 1.0, 1.0, 1.0]\n")

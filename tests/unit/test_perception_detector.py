@@ -63,6 +63,37 @@ def test_scenes_show_the_robot_standing_as_it_searches(scenes: SceneRenderer) ->
     assert min(gaps) < lo + 0.3 * (hi - lo) and max(gaps) > lo + 0.7 * (hi - lo)
 
 
+def test_tall_probe_scenes_lift_the_nose_and_stand_back(scenes: SceneRenderer) -> None:
+    """``probe_tall`` frames look as the live tall-box probe does: the trunk pitched about
+    the posture's body pitch, farther from the table than a table search stands, mostly a
+    tall box in front; ``scene_mode`` tells a seed's mode without rendering it."""
+    from quadmanip.common.rotations import quat_to_mat
+
+    pitch0 = scenes.body_pitch["probe_tall"]
+    tall = 0
+    for seed in range(40000, 40400):
+        if scenes.scene_mode(seed) != "probe_tall":
+            continue
+        mode = scenes.pose_scene(seed)
+        if mode != "probe_tall":  # the stance farther back did not fit in the room
+            assert mode == "probe_horizontal"
+            continue
+        q = scenes.data.qpos[scenes.free_adr + 3 : scenes.free_adr + 7]
+        x_axis = quat_to_mat(q)[:, 0]
+        pitch = -np.arcsin(np.clip(x_axis[2], -1.0, 1.0))  # nose up is negative
+        assert abs(pitch - pitch0) <= 0.05 + 0.035  # the noise, and the roll's share
+        x, y = scenes.data.qpos[scenes.free_adr : scenes.free_adr + 2]
+        to_table = min(
+            math.hypot(max(t.min[0] - x, 0.0, x - t.max[0]), max(t.min[1] - y, 0.0, y - t.max[1]))
+            for t in scenes.tables
+        )
+        assert to_table >= 0.22 + 0.35 - 0.01  # a table search's stance plus TALL_BACK
+        tall += 1
+    assert tall >= 10
+    modes = [scenes.scene_mode(s) for s in range(200)]
+    assert modes.count("probe_tall") > 0 and modes.count("probe_horizontal") > 0
+
+
 def test_depth_degradation_is_like_a_real_camera() -> None:
     rng = np.random.default_rng(0)
     d = np.full((100, 100), 2.0, np.float32)
