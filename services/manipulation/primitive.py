@@ -410,16 +410,17 @@ class PostureMove(Primitive):
 
     def script(self):  # noqa: ANN201 - generator type from Primitive
         """One synchronised quintic move; the trunk pitches to the posture's
-        ``body_pitch`` meanwhile (it is given ``body_settle_time`` from the request)."""
+        ``body_pitch`` meanwhile (given ``body_settle_time`` from the request when it
+        changes). The pitch is sent with every posture move, changed or not: after a
+        restart of this service the executive does not know what locomotion holds, and a
+        posture is what the task moves to first."""
         self.stage("moving", 0.1)
         obs = yield []
         b = self.body
-        if b.pitch != self.body_pitch:
-            self.body = BodyPoseRequest(b.x_offset, b.y_offset, b.z_offset, self.body_pitch)
-            obs = yield [self.body]
-            settled = obs.t + self.cfg.grasp.body_settle_time
-            yield from self.move_joints(self.goal_for(float(obs.q_arm[3])))
-            if self._last_obs is not None and self._last_obs.t < settled:
-                yield from self.wait(settled - self._last_obs.t)
-            return
+        changed = b.pitch != self.body_pitch
+        self.body = BodyPoseRequest(b.x_offset, b.y_offset, b.z_offset, self.body_pitch)
+        obs = yield [self.body]
+        settled = obs.t + (self.cfg.grasp.body_settle_time if changed else 0.0)
         yield from self.move_joints(self.goal_for(float(obs.q_arm[3])))
+        if self._last_obs is not None and self._last_obs.t < settled:
+            yield from self.wait(settled - self._last_obs.t)

@@ -224,7 +224,8 @@ def test_a_pitched_posture_lifts_the_nose_and_the_next_grasp_levels_the_trunk_fi
     assert all(c.pitch == 0.0 for c in plant.sent if isinstance(c, BodyPoseRequest))
     assert ex.body.pitch == 0.0
 
-    for name, want in (("probe_tall", [pitch]), ("stow", [0.0]), ("probe_table", [])):
+    # every posture sends its pitch: after a restart the executive does not know it
+    for name, want in (("probe_tall", [pitch]), ("stow", [0.0]), ("probe_table", [0.0])):
         plant.sent.clear()
         assert ex.accept(PostureRequest(name), plant.obs()).accepted
         ex.start()
