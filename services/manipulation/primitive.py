@@ -118,6 +118,8 @@ class Primitive:
     """Base class: subclasses implement :meth:`script` as a generator of command lists."""
 
     name = "primitive"
+    # planned for a level trunk: a pitch a posture left is levelled before the script
+    plans_level = True
 
     def __init__(
         self,
@@ -151,7 +153,7 @@ class Primitive:
 
     def _leveled_script(self) -> Script:
         """:meth:`script`, after levelling a trunk a posture left pitched."""
-        if self.body.pitch != 0.0 and not isinstance(self, PostureMove):
+        if self.body.pitch != 0.0 and self.plans_level:
             b = self.body
             self.stage("levelling the trunk", None)
             yield from self.move_body(b.x_offset, b.y_offset, b.z_offset)
@@ -329,12 +331,10 @@ class Primitive:
             if obs.t >= t_end:
                 return
 
-    def move_body(
-        self, x: float = 0.0, y: float = 0.0, z: float = 0.0, pitch: float = 0.0
-    ) -> Script:
-        """Requests a body offset (moveCOM) and trunk pitch and gives locomotion time to
-        reach it."""
-        new = BodyPoseRequest(x_offset=x, y_offset=y, z_offset=z, pitch=pitch)
+    def move_body(self, x: float = 0.0, y: float = 0.0, z: float = 0.0) -> Script:
+        """Requests a body offset (moveCOM) with a level trunk and gives locomotion time
+        to reach it."""
+        new = BodyPoseRequest(x_offset=x, y_offset=y, z_offset=z)
         if new == self.body:
             return
         self.body = new
@@ -377,6 +377,7 @@ class PostureMove(Primitive):
     """Joint-space move to a named posture (limits enforced by the planner)."""
 
     name = "move_to_posture"
+    plans_level = False  # it sets the trunk pitch itself
 
     def __init__(
         self,
