@@ -39,7 +39,9 @@ import cv2
 import mujoco
 import numpy as np
 from quadmanip.common import robot_description as rd
+from quadmanip.common.config import load_config
 from quadmanip.common.rotations import quat_from_axis_angle, quat_from_yaw, quat_mul
+from quadmanip.services.behavior.config import BehaviorConfig
 from quadmanip.services.manipulation.arm_kinematics import ArmGeometry
 from quadmanip.services.manipulation.config import load_manipulation_config
 from quadmanip.services.manipulation.postures import resolve_postures
@@ -66,7 +68,6 @@ TALL_SHARE = 0.5  # of probe_horizontal scenes, shown as probe_tall
 TALL_BACK = (0.35, 0.75)  # m: a probe_tall stance is this much farther from the table edge
 TALL_PITCH_NOISE = 0.05  # rad about the posture's body pitch
 TALL_FIRST = 0.7  # share of probe_tall scenes whose object in front is a tall one
-TALL_HEIGHT = 0.12  # m: what counts as tall (the task's ``tall``)
 CAMERAS = (rd.FRONT_CAMERA, rd.GRIPPER_CAMERA)
 PARK = (60.0, 60.0)  # objects not in a scene wait here, far outside the house
 MIN_PIXELS = 60  # fewer visible pixels: labelled but ignored (iscrowd)
@@ -160,6 +161,8 @@ class SceneRenderer:
         cfg = load_manipulation_config()
         self.postures = resolve_postures(ArmGeometry.from_description(), cfg)
         self.body_pitch = {n: p.body_pitch for n, p in cfg.postures.items()}
+        # what counts as a tall object: the tidy-up task's rule (configs/behavior.toml)
+        self.tall_height = load_config(BehaviorConfig, "behavior").task.tall
         joints = rd.joint_qpos_indices(m)
         self.arm_adr, self.leg_adr = joints[-4:], joints[:-4]
         self.free_adr = rd.free_joint_qpos_index(m)
@@ -251,7 +254,7 @@ class SceneRenderer:
         tall_rng = np.random.default_rng([seed, 0x7A11])
         tall = mode == "probe_horizontal" and tall_rng.random() < TALL_SHARE
         if tall and tall_rng.random() < TALL_FIRST:
-            high = [n for n in order if self.cat.objects[n].size[2] > TALL_HEIGHT]
+            high = [n for n in order if self.cat.objects[n].size[2] > self.tall_height]
             first = high[int(tall_rng.integers(len(high)))]
             order.remove(first)
             order.insert(0, first)
