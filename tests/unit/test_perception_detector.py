@@ -182,6 +182,12 @@ def test_a_few_training_iterations_learn_and_resume(tmp_path: Path, scenes: Scen
     coco = json.loads((data_dir / "annotations.json").read_text())
     assert coco["images"] and coco["annotations"]
     data = tr.CocoFrames([data_dir])
+    # several sets load one after the other into the arrays allocated for all of them
+    twice = tr.CocoFrames([data_dir, data_dir])
+    n = len(data)
+    assert len(twice) == 2 * n and twice.rgb.shape == (2 * n, *data.rgb.shape[1:])
+    assert np.array_equal(twice.rgb[n:], data.rgb) and np.array_equal(twice.depth[:n], data.depth)
+    assert twice.seeds == data.seeds * 2
     ck, out = tmp_path / "ck.pt", tmp_path / "det.pt"
     first = tr.train(data, 4, 2, out, ck, resume=False, save_every=2, threads=1)
     assert first["iteration"] == 4 and out.exists() and ck.exists()
