@@ -66,8 +66,11 @@ class CocoFrames:
         total = sum(len(coco["images"]) for _, coco in sets)
         if not total:
             raise ValueError(f"no frames in {', '.join(map(str, roots))}")
-        self.rgb = np.empty((0, 0, 0, 3), np.uint8)
-        self.depth = np.empty((0, 0, 0), np.uint16)
+        first = next(im for _, coco in sets for im in coco["images"])
+        hw = (int(first["height"]), int(first["width"]))
+        # the dataset's format: RGB uint8, depth uint16 millimetres (perception_dataset)
+        self.rgb = np.empty((total, *hw, 3), np.uint8)
+        self.depth = np.empty((total, *hw), np.uint16)
         self.anns: list[np.ndarray] = []
         self.seeds: list[int] = []
         for root, coco in sets:
@@ -87,12 +90,9 @@ class CocoFrames:
             with ThreadPoolExecutor(max_workers=8) as pool:
                 for im, (c, d) in zip(coco["images"], pool.map(read, coco["images"]), strict=True):
                     i = len(self.anns)
-                    if i == 0:
-                        self.rgb = np.empty((total, *c.shape), c.dtype)
-                        self.depth = np.empty((total, *d.shape), d.dtype)
-                    if c.shape != self.rgb.shape[1:] or d.shape != self.depth.shape[1:]:
+                    if c.shape != self.rgb.shape[1:] or d.shape != hw or d.dtype != np.uint16:
                         raise ValueError(
-                            f"{root}: frame {im['file_name']} is not {self.rgb.shape[1:3]}"
+                            f"{root}: frame {im['file_name']} is not {hw} with uint16 depth"
                         )
                     self.rgb[i] = c
                     self.depth[i] = d
