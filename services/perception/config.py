@@ -28,6 +28,13 @@ class NodeConfig:
     # sees a table object from about 1 m (the task steps in to grasp)
     max_side_probe: float = 1.3
     track_gate: float = 0.2  # m: a detection this near a requested track is that track
+    # rad: the gripper camera's frames feed the object memory only while it looks at least
+    # this far down: floor search (77 deg), probing (80 deg), carrying (70 deg). Walking
+    # with the arm stowed it looks ahead along the trunk (20 deg down), a view the detector
+    # was not trained on, where it took the trunk's orange front corners for toy guns: the
+    # memory filed them as tracks flat on the floor a step ahead (`make demo`, eight
+    # phantom "toy guns"). The front camera covers that view.
+    gripper_min_look_down: float = 0.8
     view_frames: int = 5  # fresh frames per camera a grasp request looks at for its target
     # a folder: each rejected grasp estimate's inputs (depth, colour, box, K, camera pose,
     # label, surface) are written there as .npz (``quadmanip perception replay`` reads

@@ -27,6 +27,7 @@ __all__ = [
     "frame_problem",
     "level_frame",
     "locate_detection",
+    "look_down",
     "pick_target",
     "surface_of",
 ]
@@ -101,6 +102,14 @@ def level_frame(img: m.RgbdImage, base_orientation: np.ndarray) -> m.RgbdImage:
         position=tilt @ img.position,
         orientation=quat_mul(q_tilt, img.orientation),
     )
+
+
+def look_down(img: m.RgbdImage) -> float:
+    """How far (rad) the camera's optical axis points below the horizontal plane of the
+    frame its pose is given in (the level body frame after :func:`level_frame`); negative
+    when it looks up."""
+    axis = quat_to_mat(img.orientation)[:, 2]  # optical z: the viewing direction
+    return float(math.asin(max(-1.0, min(1.0, -axis[2]))))
 
 
 def camera_in_odom(

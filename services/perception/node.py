@@ -49,6 +49,7 @@ from quadmanip.services.perception.frames import (
     frame_problem,
     level_frame,
     locate_detection,
+    look_down,
     pick_target,
     surface_of,
 )
@@ -121,6 +122,7 @@ class PerceptionNode(Service):
             "camera_timeouts": 0,
             "detections": 0,
             "frame_errors": 0,
+            "views_not_remembered": 0,
         }
         self.frame_ms: deque[float] = deque(maxlen=200)
         self.t_objects = -math.inf
@@ -231,7 +233,11 @@ class PerceptionNode(Service):
         candidates = [d for d in candidates if id(d) in placed_ids]
         self.counters["frames"] += 1
         self.counters["detections"] += len(dets)
-        if base is not None:
+        # the gripper camera looking ahead (arm stowed) sees the trunk: not for the memory
+        remember = cam != GRIPPER_CAMERA or look_down(img) >= cfg.node.gripper_min_look_down
+        if not remember:
+            self.counters["views_not_remembered"] += 1
+        if base is not None and remember:
             cam_p, cam_q = camera_in_odom(img, *base)
             view = CameraView(
                 camera=cam,

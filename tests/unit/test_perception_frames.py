@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 from quadmanip.common import messages as m
-from quadmanip.common.rotations import quat_from_axis_angle, quat_from_yaw, quat_to_mat
+from quadmanip.common.rotations import mat_to_quat, quat_from_axis_angle, quat_from_yaw, quat_to_mat
 from quadmanip.services.perception.detector import Detection
 from quadmanip.services.perception.frames import (
     Located,
@@ -134,3 +134,44 @@ def test_surface_and_target_choice() -> None:
     assert got is d_cup2 and where is near
     got, where, _ = pick_target([far, near], dets, (240, 320), label="cup", reach=0.3)
     assert got is d_cup and where is far
+
+
+def test_the_gripper_camera_feeds_the_memory_in_the_postures_the_detector_knows() -> None:
+    """The gate of the memory (``NodeConfig.gripper_min_look_down``) on the real robot
+    description: the gripper camera's view at floor search, probing and carrying passes;
+    walking with the arm stowed (the trunk's orange corners in view) does not."""
+    import mujoco
+    from quadmanip.common import robot_description as rd
+    from quadmanip.services.manipulation.arm_kinematics import ArmGeometry
+    from quadmanip.services.manipulation.config import load_manipulation_config
+    from quadmanip.services.manipulation.postures import resolve_postures
+    from quadmanip.services.perception.config import PerceptionConfig
+    from quadmanip.services.perception.frames import look_down
+
+    model = rd.load_mujoco_model()
+    data = mujoco.MjData(model)
+    arm = rd.joint_qpos_indices(model, rd.ARM_JOINTS)
+    cam = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, rd.GRIPPER_CAMERA)
+    postures = resolve_postures(ArmGeometry.from_description(), load_manipulation_config())
+    gate = PerceptionConfig().node.gripper_min_look_down
+    down = {}
+    for name in ("floor_search", "probe_floor", "probe_table", "carry", "stow"):
+        data.qpos[:] = rd.home_qpos(model)
+        data.qpos[3:7] = [1.0, 0.0, 0.0, 0.0]  # a level base: the base frame is level
+        data.qpos[arm] = postures[name]
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_camlight(model, data)
+        r_cv = data.cam_xmat[cam].reshape(3, 3) @ np.diag([1.0, -1.0, -1.0])  # optical frame
+        q = m.RgbdImage(stamp=0.0, camera=rd.GRIPPER_CAMERA, rgb=np.zeros((2, 2, 3), np.uint8),
+                        depth=np.zeros((2, 2), np.float32), K=K, position=np.zeros(3),
+                        orientation=mat_to_quat(r_cv))  # fmt: skip
+        down[name] = look_down(q)
+    assert all(down[n] >= gate for n in ("floor_search", "probe_floor", "probe_table", "carry")), (
+        down
+    )
+    assert down["stow"] < gate, down
+    # the optical axis up (the identity), along the base's x (level), straight down
+    for turn, expected in ((0.0, -math.pi / 2), (math.pi / 2, 0.0), (math.pi, math.pi / 2)):
+        q = quat_from_axis_angle(np.array([0.0, 1.0, 0.0]), turn)
+        assert math.isclose(look_down(_frame(np.ones((4, 4)), orientation=q)), expected,
+                            abs_tol=1e-9)  # fmt: skip
