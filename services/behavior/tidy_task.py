@@ -201,6 +201,11 @@ class DepositSpec:
     # m: an object whose long side exceeds this goes in turned across the robot
     across_above: float = 1.0
     carry_posture: str = "carry"  # carry_high over a table's edge
+    # m: sideways offsets (to the robot's left) of the release point for the first,
+    # second, ... object put here, then from the first again. Released on one spot, the
+    # next object lands on the last: paper-2 (2026-12-05) released the soup can over the
+    # sugar box already in the 2.5 cm deep tray, and it ended on the table beside it.
+    slots: tuple[float, ...] = (0.0,)
 
 
 @dataclass(frozen=True)
@@ -1650,10 +1655,16 @@ class TidyTask:
         dep, place = self._deposit()
         heading = place.stand[2]
         back = (-math.cos(heading), -math.sin(heading))  # from the target toward the robot
+        left = (back[1], -back[0])  # the robot's left, facing the place
+        # the slot: one per object already put here (the target's own record not counted)
+        n = sum(
+            1 for r in self.report.objects if r is not rec and r.placed and r.place == rec.place
+        )
+        side = dep.slots[n % len(dep.slots)] if dep.slots else 0.0
         tx, ty, tz = place.target
         point = (
-            tx + back[0] * dep.release_toward_robot,
-            ty + back[1] * dep.release_toward_robot,
+            tx + back[0] * dep.release_toward_robot + left[0] * side,
+            ty + back[1] * dep.release_toward_robot + left[1] * side,
             tz + dep.release_height,
         )
         # a long object goes in along the place's long side, across the robot; the others

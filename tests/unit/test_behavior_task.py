@@ -1244,6 +1244,27 @@ def test_only_the_wanted_classes_and_nothing_already_in_place() -> None:
     assert house.things[4].released_in == "green_box"
 
 
+def test_objects_put_into_one_place_go_to_its_slots_side_by_side() -> None:
+    # two food objects into the 2.5 cm deep tray: released on one spot, the second would
+    # land on the first (paper-2, 2026-12-05: the soup can ended beside the tray)
+    things = [
+        Thing("tomato_soup_can", 1, (2.5, 1.4, 0.05)),
+        Thing("coffee_can", 2, (3.2, 1.9, 0.07)),
+    ]
+    house = FakeHouse(things)
+    report = _task(house).run()
+    assert report.outcome == "done", report.reason
+    assert {t.released_in for t in house.things.values()} == {"tray"}
+    tray = PLACES["tray"]
+    left = (-math.sin(tray.stand[2]), math.cos(tray.stand[2]))
+    sides = [
+        (pos[0] - tray.target[0]) * left[0] + (pos[1] - tray.target[1]) * left[1]
+        for pos, _ in _calls(house, "place")
+    ]
+    assert sides == pytest.approx(list(CFG.deposits["tray"].slots))
+    assert abs(sides[0] - sides[1]) > 0.15  # farther apart than a can's diameter and more
+
+
 # ------------------------------------------------------------------ restarts
 
 
