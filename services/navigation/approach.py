@@ -64,6 +64,13 @@ class ApproachConfig:
     stop_wait: float = 1.5  # s: within tolerance and not standing this long: done anyway
     aim: float = 0.5  # of the tolerance: where the approach means to stop
     patience: float = 2.0  # s standing within tolerance but not the aim: then done there
+    # Stalled: the error (m, plus ``stall_radius`` x the heading error in rad) has not come
+    # ``stall_progress`` below its best for ``stall_time`` s. In the tidy-up trials some
+    # approaches cycled walk / stand every 4 s, never settling, until the node's 30 s limit
+    # (paper-2, 2026-12-05: five times, 150 s of one trial); the node ends a stalled one.
+    stall_progress: float = 0.003
+    stall_radius: float = 0.3
+    stall_time: float = 10.0
 
 
 def approach_pose(
@@ -94,7 +101,15 @@ class ApproachController:
         self._waited = 0.0  # s standing within tolerance but outside the aim
         self._model = np.zeros(3)  # predicted actual body velocity (vx, vy, wz)
         self._last = np.zeros(3)
+        self._best = math.inf  # smallest error so far (stall test)
+        self._since_best = 0.0  # s since it last improved by stall_progress
+        self.error = (math.inf, math.inf)  # (m, rad) at the last command
         self.nudge.reset()
+
+    @property
+    def stalled(self) -> bool:
+        """Whether the error has not improved for ``stall_time`` (module doc)."""
+        return self._since_best >= self.config.stall_time
 
     def command(
         self,
@@ -114,6 +129,12 @@ class ApproachController:
         ex, ey, eyaw = compose(invert(pose), goal)
         e = np.array([ex, ey, float(wrap(eyaw))])
         exy = math.hypot(ex, ey)
+        self.error = (exy, abs(float(e[2])))
+        err = exy + cfg.stall_radius * abs(float(e[2]))
+        if err < self._best - cfg.stall_progress:
+            self._best, self._since_best = err, 0.0
+        else:
+            self._since_best += dt
         within = exy <= tol_xy and abs(e[2]) <= tol_yaw
         on_aim = exy <= cfg.aim * tol_xy and abs(e[2]) <= cfg.aim * tol_yaw
         self._held = self._held + dt if within and standing is False else 0.0

@@ -659,7 +659,10 @@ class NavigationNode(Service):
         g = job.goal
         assert isinstance(g, m.ApproachGoal) and job.target is not None
         if now - job.t0 > self.config.node.approach_timeout:
-            self._finish(job, "blocked", "blocked: the approach did not settle in time", odom)
+            exy, eyaw = self.approacher.error
+            why = (f"blocked: the approach did not settle in time ({exy * 100:.1f} cm and "
+                   f"{math.degrees(eyaw):.1f} deg off)")  # fmt: skip
+            self._finish(job, "blocked", why, odom)
             return
         if job.anchor is not None:  # hold the odometry to the scan taken at the start
             scan = self.scan_cache.get()
@@ -674,6 +677,13 @@ class NavigationNode(Service):
         )  # fmt: skip
         if done:
             self._finish(job, "reached", "reached", odom)
+            return
+        if self.approacher.stalled:
+            exy, eyaw = self.approacher.error
+            why = (f"blocked: the approach did not settle in time (no progress for "
+                   f"{self.approacher.config.stall_time:.0f} s, {exy * 100:.1f} cm and "
+                   f"{math.degrees(eyaw):.1f} deg off)")  # fmt: skip
+            self._finish(job, "blocked", why, odom)
             return
         if self._too_close(vx, vy):
             self._finish(job, "blocked", "blocked: an obstacle touches the footprint", odom)

@@ -301,6 +301,7 @@ def test_approach_controller_reaches_targets_precisely():
             base.step((vx, vy, wz))
             t += 0.05
         assert done, f"target {goal} not reached"
+        assert not ctl.stalled  # converging approaches never count as stalled
         exy = math.dist(base.pose[:2], goal[:2])
         eyaw = abs(wrap(base.pose[2] - goal[2]))
         times.append(t)
@@ -457,3 +458,29 @@ def test_the_final_alignment_nudges_a_standing_robot():
 def test_planner_config_is_frozen():
     with pytest.raises(AttributeError):
         PlannerConfig().cost_weight = 1.0  # type: ignore[misc]
+
+
+def test_an_approach_that_makes_no_progress_is_stalled_after_stall_time() -> None:
+    """A robot that walks and stands without getting nearer (the tidy-up's walk / stand
+    cycles that ran into the 30 s limit) is reported stalled after ``stall_time``; one
+    that keeps getting nearer, however slowly, is not."""
+    cfg = ApproachConfig()
+    goal = (0.5, 0.1, 0.0)
+    ctl = ApproachController(cfg)
+    t = 0.0
+    while t < cfg.stall_time - 1.0:  # stuck 6 cm short: nothing it commands moves it
+        ctl.command((0.44, 0.1, 0.0), goal, 0.015, 0.03)
+        t += 0.05
+    assert not ctl.stalled
+    while t < cfg.stall_time + 0.5:
+        ctl.command((0.44, 0.1, 0.0), goal, 0.015, 0.03)
+        t += 0.05
+    assert ctl.stalled and ctl.error[0] == pytest.approx(0.06)
+    slow = ApproachController(cfg)
+    x = 0.2
+    for _ in range(int(3 * cfg.stall_time / 0.05)):  # 5 mm nearer every 1.5 s: progress
+        slow.command((x, 0.1, 0.0), goal, 0.015, 0.03)
+        x += 0.005 * 0.05 / 1.5
+    assert not slow.stalled
+    slow.reset()
+    assert not slow.stalled and slow.error[0] == math.inf
