@@ -45,6 +45,7 @@ class ObjectRecord:
     attempts: int = 0  # failures that count against the give-up rule
     restarts: int = 0  # times a service's restart interrupted the work on it
     unseen: int = 0  # probes from its probing area that detected no such object
+    estimated: bool = False  # perception planned a grasp of it from close by at least once
     side_probe: bool = False  # perception asked for a look from the side (4.3: not level)
     time_spent: float = 0.0  # s of robot time spent on it (approach to let go)
     failures: list[Failure] = field(default_factory=list)
