@@ -35,6 +35,10 @@ class NodeConfig:
     # memory filed them as tracks flat on the floor a step ahead (`make demo`, eight
     # phantom "toy guns"). The front camera covers that view.
     gripper_min_look_down: float = 0.8
+    # A detection whose extent is longer than extent_ratio x its class's longest side (the
+    # object catalogue) + extent_margin is not remembered (frames.plausible_extent)
+    extent_ratio: float = 1.5
+    extent_margin: float = 0.05
     view_frames: int = 5  # fresh frames per camera a grasp request looks at for its target
     # a folder: each rejected grasp estimate's inputs (depth, colour, box, K, camera pose,
     # label, surface) are written there as .npz (``quadmanip perception replay`` reads

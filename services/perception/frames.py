@@ -28,6 +28,7 @@ __all__ = [
     "level_frame",
     "locate_detection",
     "look_down",
+    "plausible_extent",
     "pick_target",
     "surface_of",
 ]
@@ -110,6 +111,18 @@ def look_down(img: m.RgbdImage) -> float:
     when it looks up."""
     axis = quat_to_mat(img.orientation)[:, 2]  # optical z: the viewing direction
     return float(math.asin(max(-1.0, min(1.0, -axis[2]))))
+
+
+def plausible_extent(
+    extent: np.ndarray, size: tuple[float, ...], ratio: float = 1.5, margin: float = 0.05
+) -> bool:
+    """Whether a placed detection's extent (m, any axes) could be an object of catalogue
+    ``size``: no side longer than ``ratio`` x the object's longest side + ``margin``. The
+    slack covers a turned object's axis-aligned box (up to sqrt 2) and a few background
+    points; on 584 true detections in 750 rendered scenes the longest side was at most 1.42
+    x the catalogue's (p99 1.05). A box that framed furniture is far larger: a "sugar box"
+    on the kitchen table's edge measured 0.40 m tall (the catalogue: 0.175 m)."""
+    return float(np.max(extent)) <= ratio * max(size) + margin
 
 
 def camera_in_odom(

@@ -51,6 +51,7 @@ from quadmanip.services.perception.frames import (
     locate_detection,
     look_down,
     pick_target,
+    plausible_extent,
     surface_of,
 )
 from quadmanip.services.perception.grasp_pose import GraspEstimate, estimate_grasp_from_depth
@@ -123,6 +124,7 @@ class PerceptionNode(Service):
             "detections": 0,
             "frame_errors": 0,
             "views_not_remembered": 0,
+            "implausible_extent": 0,
         }
         self.frame_ms: deque[float] = deque(maxlen=200)
         self.t_objects = -math.inf
@@ -249,6 +251,21 @@ class PerceptionNode(Service):
                 depth=img.depth,
             )
             shown = {id(d) for d in dets}
+            nc = cfg.node
+            sized = [
+                x
+                for x in located
+                if id(x.detection) in shown
+                and plausible_extent(
+                    x.extent,
+                    self.catalogue.objects[x.detection.label].size,
+                    nc.extent_ratio,
+                    nc.extent_margin,
+                )  # fmt: skip
+            ]
+            self.counters["implausible_extent"] += sum(
+                id(x.detection) in shown for x in located
+            ) - len(sized)
             obs = [
                 Observation(
                     class_name=x.detection.label,
@@ -257,8 +274,7 @@ class PerceptionNode(Service):
                     extent=x.extent,
                     camera=cam,
                 )
-                for x in located
-                if id(x.detection) in shown
+                for x in sized
             ]
             with self.lock:
                 self.memory.update(obs, view, img.stamp)

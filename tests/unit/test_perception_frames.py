@@ -175,3 +175,19 @@ def test_the_gripper_camera_feeds_the_memory_in_the_postures_the_detector_knows(
         q = quat_from_axis_angle(np.array([0.0, 1.0, 0.0]), turn)
         assert math.isclose(look_down(_frame(np.ones((4, 4)), orientation=q)), expected,
                             abs_tol=1e-9)  # fmt: skip
+
+
+def test_an_extent_far_larger_than_the_class_is_not_plausible() -> None:
+    from quadmanip.common.object_catalogue import load_catalogue
+    from quadmanip.services.perception.frames import plausible_extent
+
+    cat = load_catalogue()
+    sugar = cat.objects["sugar_box"].size  # 0.09 x 0.045 x 0.175
+    assert plausible_extent(np.array(sugar), sugar)
+    # turned 45 deg about z its axis-aligned box grows by up to sqrt 2: still a sugar box
+    assert plausible_extent(np.array([0.095, 0.095, 0.175]), sugar)
+    # the "sugar box" that framed the kitchen table's edge: 0.40 m tall
+    assert not plausible_extent(np.array([0.08, 0.06, 0.40]), sugar)
+    cube = cat.objects["rubiks_cube"].size
+    assert plausible_extent(np.array([0.081, 0.015, 0.012]), cube)  # the largest seen (1.42 x)
+    assert not plausible_extent(np.array([0.30, 0.05, 0.05]), cube)
