@@ -201,11 +201,13 @@ class DepositSpec:
     # m: an object whose long side exceeds this goes in turned across the robot
     across_above: float = 1.0
     carry_posture: str = "carry"  # carry_high over a table's edge
-    # m: sideways offsets (to the robot's left) of the release point for the first,
-    # second, ... object put here, then from the first again. Released on one spot, the
-    # next object lands on the last: paper-2 (2026-12-05) released the soup can over the
-    # sugar box already in the 2.5 cm deep tray, and it ended on the table beside it.
-    slots: tuple[float, ...] = (0.0,)
+    # m: offsets (to the robot's left, toward the robot) of the release point for the
+    # first, second, ... object put here, then from the first again. Released on one
+    # spot, the next object lands on the last: paper-2 (2026-12-05) released the soup can
+    # over the sugar box already in the 2.5 cm deep tray, and it ended on the table beside
+    # it; paper-1 put the marker onto the spoon in the pencil case, and the spoon was
+    # still rocking when the trial ended.
+    slots: tuple[tuple[float, float], ...] = ((0.0, 0.0),)
 
 
 @dataclass(frozen=True)
@@ -1665,11 +1667,12 @@ class TidyTask:
         n = sum(
             1 for r in self.report.objects if r is not rec and r.placed and r.place == rec.place
         )
-        side = dep.slots[n % len(dep.slots)] if dep.slots else 0.0
+        side, toward = dep.slots[n % len(dep.slots)] if dep.slots else (0.0, 0.0)
+        toward += dep.release_toward_robot
         tx, ty, tz = place.target
         point = (
-            tx + back[0] * dep.release_toward_robot + left[0] * side,
-            ty + back[1] * dep.release_toward_robot + left[1] * side,
+            tx + back[0] * toward + left[0] * side,
+            ty + back[1] * toward + left[1] * side,
             tz + dep.release_height,
         )
         # a long object goes in along the place's long side, across the robot; the others
