@@ -111,6 +111,11 @@ class ApproachController:
         """Whether the error has not improved for ``stall_time`` (module doc)."""
         return self._since_best >= self.config.stall_time
 
+    def off(self) -> str:
+        """The error at the last command, for a reason: "4.9 cm and 0.1 deg off"."""
+        exy, eyaw = self.error
+        return f"{exy * 100:.1f} cm and {math.degrees(eyaw):.1f} deg off"
+
     def command(
         self,
         pose: Pose2,

@@ -659,9 +659,7 @@ class NavigationNode(Service):
         g = job.goal
         assert isinstance(g, m.ApproachGoal) and job.target is not None
         if now - job.t0 > self.config.node.approach_timeout:
-            exy, eyaw = self.approacher.error
-            why = (f"blocked: the approach did not settle in time ({exy * 100:.1f} cm and "
-                   f"{math.degrees(eyaw):.1f} deg off)")  # fmt: skip
+            why = f"blocked: the approach did not settle in time ({self.approacher.off()})"
             self._finish(job, "blocked", why, odom)
             return
         if job.anchor is not None:  # hold the odometry to the scan taken at the start
@@ -679,10 +677,9 @@ class NavigationNode(Service):
             self._finish(job, "reached", "reached", odom)
             return
         if self.approacher.stalled:
-            exy, eyaw = self.approacher.error
+            quiet = self.approacher.config.stall_time
             why = (f"blocked: the approach did not settle in time (no progress for "
-                   f"{self.approacher.config.stall_time:.0f} s, {exy * 100:.1f} cm and "
-                   f"{math.degrees(eyaw):.1f} deg off)")  # fmt: skip
+                   f"{quiet:.0f} s, {self.approacher.off()})")  # fmt: skip
             self._finish(job, "blocked", why, odom)
             return
         if self._too_close(vx, vy):

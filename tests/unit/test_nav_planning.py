@@ -476,6 +476,7 @@ def test_an_approach_that_makes_no_progress_is_stalled_after_stall_time() -> Non
         ctl.command((0.44, 0.1, 0.0), goal, 0.015, 0.03)
         t += 0.05
     assert ctl.stalled and ctl.error[0] == pytest.approx(0.06)
+    assert ctl.off() == "6.0 cm and 0.0 deg off"
     slow = ApproachController(cfg)
     x = 0.2
     for _ in range(int(3 * cfg.stall_time / 0.05)):  # 5 mm nearer every 1.5 s: progress
