@@ -14,6 +14,12 @@ with cubic Hermite splines:
 
 Every trajectory passes :func:`validate` before it is returned: finite values, joint
 position, velocity and acceleration limits. Nothing that fails is ever sent to the arm.
+
+Both start from the *measured* joints, which an arm pushed against furniture can carry a
+little past a limit (paper-3, 2026-12-05: the elbow read 2.012 rad against its 2.000
+limit after a blocked place, and every later move was refused, the held object with
+them). A start within ``START_SLACK`` beyond a limit is taken from the limit: the first
+knot sits on it and the joint's position loop pulls the arm back inside.
 """
 
 from __future__ import annotations
@@ -37,9 +43,12 @@ __all__ = [
     "hold",
     "plan_cartesian_line",
     "plan_joint_path",
+    "start_within_limits",
     "validate",
 ]
 
+#: rad: how far past a limit a measured start joint is still taken from the limit
+START_SLACK = 0.05
 _QUINTIC_V = 15.0 / 8.0
 _QUINTIC_A = 10.0 / math.sqrt(3.0)
 
@@ -113,6 +122,15 @@ class JointTrajectory:
         )
 
 
+def start_within_limits(q: Sequence[float], limits: MotionLimits) -> np.ndarray:
+    """The measured start joints, a joint up to ``START_SLACK`` past its limit taken from
+    the limit (module docstring); farther out they are returned as they are (and the
+    plan is refused with ``joint_limit``)."""
+    qa = np.asarray(q, dtype=float)
+    near = (qa >= limits.q_min - START_SLACK) & (qa <= limits.q_max + START_SLACK)
+    return np.where(near, np.clip(qa, limits.q_min, limits.q_max), qa)
+
+
 def hold(q: Sequence[float], t0: float) -> JointTrajectory:
     """A single-knot trajectory: hold ``q`` from ``t0`` on (used to stop the arm)."""
     qa = np.asarray(q, dtype=float).reshape(1, 4)
@@ -137,11 +155,12 @@ def plan_joint_path(
     min_segment: float = 0.2,
 ) -> JointTrajectory:
     """Quintic rest-to-rest segments through ``waypoints`` (first = current joints)."""
-    wps = np.asarray(waypoints, dtype=float)
+    wps = np.array(waypoints, dtype=float)  # a copy: the start may be clipped
     if wps.ndim != 2 or wps.shape[1] != 4 or len(wps) < 1:
         raise TrajectoryError("shape", f"waypoints shape {wps.shape} is not (N>=1, 4)")
     if not np.all(np.isfinite(wps)) or not math.isfinite(t0):
         raise TrajectoryError("non_finite", "waypoint or start time is not finite")
+    wps[0] = start_within_limits(wps[0], limits)
     _check_positions(wps, limits)
     ts, qs, dqs = [np.array([t0])], [wps[:1]], [np.zeros((1, 4))]
     t_cur = float(t0)
@@ -185,6 +204,7 @@ def plan_cartesian_line(
     q0 = np.asarray(q_start, dtype=float)
     if q0.shape != (4,) or not np.all(np.isfinite(q0)):
         raise TrajectoryError("non_finite", "start joints must be 4 finite values")
+    q0 = start_within_limits(q0, limits)
     start = fk_tcp(geom, q0)
     g = np.array([goal.x, goal.z, goal.pitch, goal.roll], dtype=float)
     if not np.all(np.isfinite(g)):

@@ -15,6 +15,7 @@ from quadmanip.services.manipulation.trajectory import (
     hold,
     plan_cartesian_line,
     plan_joint_path,
+    start_within_limits,
     validate,
 )
 from quadmanip.sim.actuators import hermite
@@ -117,6 +118,27 @@ def test_limits_and_non_finite_rejected(limits):
     h = hold([0.1, 0.2, 0.3, 0.4], 5.0)
     validate(h, limits)
     assert h.t.tolist() == [5.0] and np.all(h.dq == 0)
+
+
+def test_a_start_pushed_just_past_a_limit_moves_back_inside(geom, limits, cfg):
+    # paper-3: the elbow read 2.012 rad (limit 2.000) after a blocked place; every move
+    # from there was refused and the held object could not be put down
+    j = 2
+    postures = resolve_postures(geom, cfg)
+    q0 = np.array(postures["probe_table"])
+    q0[j] = limits.q_max[j] + 0.012
+    q1 = np.array(postures["carry_high"])
+    traj = plan_joint_path([q0, q1], 0.0, limits)
+    assert traj.q[0][j] == pytest.approx(limits.q_max[j]) and np.allclose(traj.q[-1], q1)
+    assert q0[j] == pytest.approx(limits.q_max[j] + 0.012)  # the caller's array untouched
+    start = fk_tcp(geom, start_within_limits(q0, limits))
+    goal = ArmTarget(start.x, start.z - 0.05, start.pitch, start.roll)  # down: j3 bends less
+    line = plan_cartesian_line(geom, q0, goal, 0.0, limits)
+    assert np.all(line.q[:, j] <= limits.q_max[j] + 1e-9)
+    # a start far outside is no measurement error: refused
+    q0[j] = limits.q_max[j] + 0.3
+    with pytest.raises(TrajectoryError, match="joint_limit"):
+        plan_joint_path([q0, q1], 0.0, limits)
 
 
 def test_postures_from_config(geom, cfg):
