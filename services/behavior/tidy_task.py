@@ -295,6 +295,12 @@ class TaskConfig:
     zone_margin: float = 0.3
     place_attempts: int = 4  # place requests per attempt (out-of-reach steps between)
     place_step: float = 0.05  # m stepped when a place is out of reach
+    # A step in toward an out-of-reach release point that brings the robot less than
+    # ``place_blocked_progress`` nearer: its stance is blocked (paper-3, 2026-12-05: eight
+    # steps in at the black box each stopped 5 cm short, 130 s). The robot backs off by
+    # ``place_back_off`` and tries the place's next slot.
+    place_blocked_progress: float = 0.01
+    place_back_off: float = 0.25
     verify_radius: float = 0.2  # m: a track of the class this near the release point saw it
     let_go_wait: float = 1.0  # s for the gripper to report empty after a place
     # Restarts of the robot's services (module docstring).
@@ -576,6 +582,8 @@ class TidyTask:
         # the object the task last let go of (placed or dropped): the one still in the
         # fingers when a grasp is refused as already_holding
         self.last_released: ObjectRecord | None = None
+        # slots skipped per object (by id of its record): their stances were blocked
+        self.slot_skips: dict[int, int] = {}
         # restarts: the outages already dealt with; the life of perception's track ids
         self._handled: dict[str, int] = {}
         self.track_epoch = 0
@@ -742,14 +750,25 @@ class TidyTask:
     def _put_down(self) -> None:
         """Set a held object down on the floor ahead (after giving it up), so the gripper
         is free for the next one."""
-        pose = self.robot.pose()
-        if pose is None:
-            return
-        ahead = self.cfg.probe_standoff
-        spot = (pose[0] + ahead * math.cos(pose[2]), pose[1] + ahead * math.sin(pose[2]), 0.0)
-        self._say("putting the object down")
-        self._posture(self.cfg.probe_floor_posture)
-        self.robot.place(spot, None)
+        # what stays in the fingers from here on is this object, not the one let go of
+        # last (paper-3, 2026-12-05: a put-down failed, and the next grasp's
+        # already_holding took the coffee can placed before it for still held)
+        self.last_released = None
+        for back in (0.0, self.cfg.step_back):  # once more from a step back (the arm
+            pose = self.robot.pose()  # may have been stopped by furniture ahead)
+            if pose is None:
+                return
+            if back:
+                behind = (pose[0] - back * math.cos(pose[2]), pose[1] - back * math.sin(pose[2]))
+                self.robot.approach(behind, 0.0, pose[2], True)
+                pose = self.robot.pose() or pose
+            ahead = self.cfg.probe_standoff
+            spot = (pose[0] + ahead * math.cos(pose[2]), pose[1] + ahead * math.sin(pose[2]), 0.0)
+            self._say("putting the object down")
+            self._posture(self.cfg.probe_floor_posture)
+            if self.robot.place(spot, None).ok or self.robot.holding() is False:
+                return
+            self.posture = ""  # the arm stopped wherever it was blocked
 
     def _walk_to_stand(self, place: Place) -> Outcome:
         """Walk to ``stage_back`` behind ``place``'s stand, facing its way; the caller's
@@ -1667,6 +1686,7 @@ class TidyTask:
         n = sum(
             1 for r in self.report.objects if r is not rec and r.placed and r.place == rec.place
         )
+        n += self.slot_skips.get(id(rec), 0)
         side, toward = dep.slots[n % len(dep.slots)] if dep.slots else (0.0, 0.0)
         toward += dep.release_toward_robot
         tx, ty, tz = place.target
@@ -1718,6 +1738,8 @@ class TidyTask:
             now_dist = _dist(self._pose(), point)
             step = -self.cfg.place_step if reach[0] == TOO_FAR else self.cfg.place_step
             self.robot.approach((point[0], point[1]), max(now_dist + step, 0.1), heading, True)
+            if reach[0] == TOO_FAR and self._blocked_stance(now_dist, point):
+                return self._stance_blocked(point, heading, out.reason)
         self.posture = ""
         # it let go somewhere other than asked (or manipulation, restarted, lost the grip);
         # the grip state may trail the result (paper-5: read 2 ms before "holding" came,
@@ -1730,6 +1752,22 @@ class TidyTask:
             self._dropped(f"place: {out.reason}; let go elsewhere", Step.PLACE)
             return Step.GO_TO_VIEWPOINT
         return self._give_up_or(Step.PLACE, f"place: {out.reason}", Step.PLACE)
+
+    def _blocked_stance(self, before: float, point: Point3) -> bool:
+        """Whether a step in toward ``point`` from ``before`` m left the robot no nearer."""
+        return _dist(self._pose(), point) > before - self.cfg.place_blocked_progress
+
+    def _stance_blocked(self, point: Point3, heading: float, why: str) -> Step:
+        """Something stops the robot short of the place's stance (an object at its feet,
+        the box itself where the pose estimate is a few cm off): back off, and try the
+        place's next slot, approached afresh."""
+        rec = self.target
+        assert rec is not None
+        dep, _ = self._deposit()
+        self.slot_skips[id(rec)] = self.slot_skips.get(id(rec), 0) + 1
+        back = dep.reach + self.cfg.place_back_off
+        self.robot.approach((point[0], point[1]), back, heading, True)
+        return self._give_up_or(Step.PLACE, f"place: stance blocked, no nearer: {why}", Step.PLACE)
 
     def _still_held(self, why: str = "still in the gripper at the next grasp") -> None:
         """The object last let go of is in the fingers after all: not placed (or dropped
