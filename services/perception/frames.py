@@ -28,6 +28,7 @@ __all__ = [
     "level_frame",
     "locate_detection",
     "look_down",
+    "implausible_grasp",
     "plausible_extent",
     "pick_target",
     "surface_of",
@@ -123,6 +124,24 @@ def plausible_extent(
     x the catalogue's (p99 1.05). A box that framed furniture is far larger: a "sugar box"
     on the kitchen table's edge measured 0.40 m tall (the catalogue: 0.175 m)."""
     return float(np.max(extent)) <= ratio * max(size) + margin
+
+
+def implausible_grasp(
+    label: str, hang: float, size: tuple[float, ...], ratio: float = 1.5, margin: float = 0.05
+) -> str | None:
+    """Why a grasp planned ``hang`` m above its supporting surface cannot be one of an
+    object ``label`` of catalogue ``size`` (the :func:`plausible_extent` test on its
+    height), worded as a detection that is not there; None when it can be. paper-5
+    (2026-12-05): four "sugar boxes" at the kitchen table's legs planned grasps about
+    0.40 m above the floor (a sugar box stands 0.175 m); each cost an approach, a grasp
+    and a second probe, while the memory's extents of them had passed its own test."""
+    if plausible_extent(np.array([hang]), size, ratio, margin):
+        return None
+    tallest = max(size)
+    return (
+        f"not in view: no {label} detected here (the grasp would be {hang:.2f} m above its "
+        f"surface; a {label} is at most {tallest:.2f} m)"
+    )
 
 
 def camera_in_odom(

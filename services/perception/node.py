@@ -47,6 +47,7 @@ from quadmanip.services.perception.frames import (
     Located,
     camera_in_odom,
     frame_problem,
+    implausible_grasp,
     level_frame,
     locate_detection,
     look_down,
@@ -125,6 +126,7 @@ class PerceptionNode(Service):
             "frame_errors": 0,
             "views_not_remembered": 0,
             "implausible_extent": 0,
+            "implausible_grasp": 0,
         }
         self.frame_ms: deque[float] = deque(maxlen=200)
         self.t_objects = -math.inf
@@ -503,6 +505,15 @@ class PerceptionNode(Service):
         spec = self.catalogue.objects.get(det.label)
         where = surface_of(loc, p.base, float(spec.size[2]) if spec is not None else 0.0)
         est = estimate(where)
+        why = None
+        if est.ok and spec is not None:
+            nc = cfg.node
+            why = implausible_grasp(
+                det.label, est.hang, spec.size, nc.extent_ratio, nc.extent_margin
+            )
+        if why is not None:
+            self.counters["implausible_grasp"] += 1
+            raise ActionFailed(f"{img.camera}: {why}")
         if not est.ok:
             detail = f" ({est.detail})" if est.detail else ""
             reason = f"{est.reason}: {det.label} in {img.camera}{detail}"

@@ -20,6 +20,7 @@ from quadmanip.common.object_catalogue import load_catalogue
 from quadmanip.common.robot_description import GRASP_MAX_TILT, HORIZONTAL_GRASP_DEPTH
 from quadmanip.common.rotations import quat_from_axis_angle, quat_to_mat
 from quadmanip.services.perception import rejections
+from quadmanip.services.perception.frames import implausible_grasp
 from quadmanip.services.perception.grasp_candidates import (
     CandidateConfig,
     Candidates,
@@ -175,6 +176,21 @@ def test_box_on_the_floor_is_grasped_across_its_narrow_side(cat):
     assert est.surface_height == pytest.approx(FLOOR, abs=0.002)
     assert est.tilt == 0.0
     assert est.mass == pytest.approx(cat.objects["brick"].mass)
+
+
+def test_a_grasp_far_higher_than_its_class_stands_is_refused_as_not_detected(cat):
+    # paper-5 (2026-12-05): "sugar boxes" at the kitchen table's legs, grasps ~0.40 m up
+    sugar = cat.objects["sugar_box"]
+    leg = box_cloud(np.array([0.36, 0.0]), (0.05, 0.05, 0.40), 0.0, FLOOR)
+    cam = CAM_ABOVE + [0.0, 0.0, 0.25]  # (the floor posture's camera is 5 cm above it)
+    est = estimate_grasp(leg, cam, "sugar_box", cat)
+    assert est.ok and est.hang > 0.3
+    why = implausible_grasp("sugar_box", est.hang, sugar.size)
+    assert why is not None and why.startswith("not in view: no sugar_box detected")
+    # the real one, standing on its end, passes
+    box = box_cloud(np.array([0.36, 0.0]), sugar.size, 0.3, FLOOR)
+    est = estimate_grasp(box, cam, "sugar_box", cat)
+    assert est.ok and implausible_grasp("sugar_box", est.hang, sugar.size) is None
 
 
 def test_table_under_the_object_wins_over_floor_seen_past_its_edge(cat):
