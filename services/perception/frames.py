@@ -127,20 +127,20 @@ def plausible_extent(
 
 
 def implausible_grasp(
-    label: str, hang: float, size: tuple[float, ...], ratio: float = 1.5, margin: float = 0.05
+    label: str, height: float, size: tuple[float, ...], ratio: float = 1.5, margin: float = 0.05
 ) -> str | None:
-    """Why a grasp planned ``hang`` m above its supporting surface cannot be one of an
-    object ``label`` of catalogue ``size`` (the :func:`plausible_extent` test on its
+    """Why what a probe measured ``height`` m tall above its supporting surface cannot be
+    an object ``label`` of catalogue ``size`` (the :func:`plausible_extent` test on its
     height), worded as a detection that is not there; None when it can be. paper-5
-    (2026-12-05): four "sugar boxes" at the kitchen table's legs planned grasps about
-    0.40 m above the floor (a sugar box stands 0.175 m); each cost an approach, a grasp
-    and a second probe, while the memory's extents of them had passed its own test."""
-    if plausible_extent(np.array([hang]), size, ratio, margin):
+    (2026-12-05): four "sugar boxes" at the kitchen table's legs measured about 0.40 m
+    (a sugar box stands 0.175 m); each cost an approach, a grasp and a second probe, while
+    the memory's extents of them had passed its own test."""
+    if plausible_extent(np.array([height]), size, ratio, margin):
         return None
     tallest = max(size)
     return (
-        f"not in view: no {label} detected here (the grasp would be {hang:.2f} m above its "
-        f"surface; a {label} is at most {tallest:.2f} m)"
+        f"not in view: no {label} detected here (what is there stands {height:.2f} m above "
+        f"its surface; a {label} is at most {tallest:.2f} m)"
     )
 
 

@@ -121,6 +121,11 @@ class GraspConfig:
     redo_angle: float = 0.12  # rad: re-run the map if the narrowest direction turned more
     max_redo: int = 3  # ... at most this many times
     solid_share: float = 0.6  # footprint / its bounding rectangle: a solid body (a disk: 0.79)
+    # a vessel (catalogue) whose wall narrows toward its foot by more than this (rad) is
+    # pinched at its wall: squeezed around, a tapered body is pressed out of the pads
+    # toward its narrow end (paper-5, 2026-12-05: the stacking cup, 8 deg, slipped out 6
+    # times in 7 grasps, while carried and while the body rose after the grasp)
+    pinch_taper: float = 0.05
 
 
 @dataclass(frozen=True)
@@ -146,6 +151,8 @@ class GraspEstimate:
     surface_height: float = math.nan
     n_points: int = 0
     normal_z: float = math.nan
+    # m: the object's top above its supporting surface, as measured (nan: not measured)
+    height: float = math.nan
     detail: str = ""  # a rejection's numbers, for the log and the operator
 
 
@@ -445,7 +452,8 @@ def estimate_grasp(
         return _horizontal(
             obj, filt, up_v, cell, pitch, cfg, object_name, spec, mass, normal_z, top_cut
         )
-    return _vertical(obj, filt, up_v, cell, pitch, cfg, object_name, mass, where, normal_z)
+    pinch = _tapered(spec, cfg.pinch_taper)
+    return _vertical(obj, filt, up_v, cell, pitch, cfg, object_name, mass, where, normal_z, pinch)
 
 
 def _vertical(
@@ -459,7 +467,9 @@ def _vertical(
     mass: float,
     where: str,
     normal_z: float,
+    pinch: bool = False,
 ) -> GraspEstimate:
+    """4.4-4.6 from above; ``pinch``: straight to the wall pinch (a tapered vessel)."""
     n = obj.shape[0]
     if filt.surface is not None:
         up = filt.surface.normal
@@ -469,7 +479,7 @@ def _vertical(
     centroid = obj.mean(axis=0)
     surface_z = float((centroid - ((centroid @ up) - reference) * up)[2])
     height = float((obj @ up).max() - reference)
-    extra = {"surface_height": surface_z, "normal_z": normal_z}
+    extra = {"surface_height": surface_z, "normal_z": normal_z, "height": height}
     if where == "table":  # 4.3: the probing direction for a table object
         # the paper's test on the RANSAC normal, of the object's top (what a vertical grasp
         # meets; the whole cloud's dominant plane is a cup's inner wall), and the height
@@ -504,7 +514,7 @@ def _vertical(
     # around: straight to the wall pinch (a clamp is as wide, but open: try it)
     _, long_side, short_side = min_area_rect(lev[:, :2])
     solid = _footprint_area(lev[:, :2], cell) >= cfg.solid_share * long_side * short_side
-    if short_side < cc.finger_span or not solid:
+    if (short_side < cc.finger_span or not solid) and not pinch:
         for angle in (across, axis):
             best = _vertical_pass(obj, up, reference, angle, cell, cfg, True, pitch)
             if best is not None:
@@ -527,8 +537,9 @@ def _vertical(
                 break
             best = again
     else:
-        # too wide to close around: a wall of a vessel, the side facing the robot (4.5.3's
-        # tie-break extended: equal distances to the centre, nearest the robot first)
+        # too wide to close around (or tapered): a wall of a vessel, the side facing the
+        # robot (4.5.3's tie-break extended: equal distances to the centre, nearest the
+        # robot first)
         fc = _footprint_centre(obj, up, cell)
         radial = math.atan2(float(fc[1]), float(fc[0]))
         rim = _vertical_pass(obj, up, reference, radial, cell, cfg, False, pitch, fc)
@@ -539,7 +550,9 @@ def _vertical(
         if est is None:
             return _reject(name, "no graspable candidate", mass, n, **extra)
         roll = gripper_roll(fc[:2], est.position[:2], across, cc.roll_threshold)
-        return GraspEstimate(**{**est.__dict__, "yaw": _yaw_of_closing(roll), "normal_z": normal_z})
+        return GraspEstimate(
+            **{**est.__dict__, "yaw": _yaw_of_closing(roll), "normal_z": normal_z, "height": height}
+        )
     width = best.width + pitch  # a sampled edge lies half a pixel inside, on average
     if width > cfg.max_width:
         return _reject(name, "too wide", mass, n, **extra)
@@ -560,6 +573,7 @@ def _vertical(
         surface_height=float(pos[2] - z * up[2]),
         n_points=n,
         normal_z=normal_z,
+        height=height,
     )
 
 
@@ -652,6 +666,17 @@ def _horizontal(
         n_points=n,
         normal_z=normal_z,
     )
+
+
+def _tapered(spec: object | None, limit: float) -> bool:
+    """Whether the class is a vessel whose wall narrows toward its foot by more than
+    ``limit`` rad (GraspConfig.pinch_taper)."""
+    vessel = getattr(spec, "vessel", None)
+    if vessel is None:
+        return False
+    top = float(spec.size[1])  # type: ignore[attr-defined]  # (size[0] includes a handle)
+    height = float(spec.size[2])  # type: ignore[attr-defined]
+    return math.atan2(0.5 * (top - float(vessel.bottom_diameter)), height) > limit
 
 
 def _depth_along_view(c: np.ndarray, width: float, spec: object | None) -> float:

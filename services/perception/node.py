@@ -506,11 +506,10 @@ class PerceptionNode(Service):
         where = surface_of(loc, p.base, float(spec.size[2]) if spec is not None else 0.0)
         est = estimate(where)
         why = None
-        if est.ok and spec is not None:
+        if spec is not None:  # (a refusal too: "probe horizontally" a 0.40 m "sugar box")
             nc = cfg.node
-            why = implausible_grasp(
-                det.label, est.hang, spec.size, nc.extent_ratio, nc.extent_margin
-            )
+            tall = est.height if math.isfinite(est.height) else est.hang
+            why = implausible_grasp(det.label, tall, spec.size, nc.extent_ratio, nc.extent_margin)
         if why is not None:
             self.counters["implausible_grasp"] += 1
             raise ActionFailed(f"{img.camera}: {why}")

@@ -184,13 +184,18 @@ def test_a_grasp_far_higher_than_its_class_stands_is_refused_as_not_detected(cat
     leg = box_cloud(np.array([0.36, 0.0]), (0.05, 0.05, 0.40), 0.0, FLOOR)
     cam = CAM_ABOVE + [0.0, 0.0, 0.25]  # (the floor posture's camera is 5 cm above it)
     est = estimate_grasp(leg, cam, "sugar_box", cat)
-    assert est.ok and est.hang > 0.3
-    why = implausible_grasp("sugar_box", est.hang, sugar.size)
+    assert est.ok and est.height == pytest.approx(0.40, abs=0.005)
+    why = implausible_grasp("sugar_box", est.height, sugar.size)
     assert why is not None and why.startswith("not in view: no sugar_box detected")
+    # paper-3 (same day): on a table it was refused as "probe horizontally" (tall); the
+    # refusal carries the height, so the node refuses it as not there instead
+    est = estimate_grasp(leg, cam, "sugar_box", cat, where="table")
+    assert not est.ok and est.height == pytest.approx(0.40, abs=0.005)
     # the real one, standing on its end, passes
     box = box_cloud(np.array([0.36, 0.0]), sugar.size, 0.3, FLOOR)
     est = estimate_grasp(box, cam, "sugar_box", cat)
-    assert est.ok and implausible_grasp("sugar_box", est.hang, sugar.size) is None
+    assert est.ok and est.height == pytest.approx(sugar.size[2], abs=0.005)
+    assert implausible_grasp("sugar_box", est.height, sugar.size) is None
 
 
 def test_table_under_the_object_wins_over_floor_seen_past_its_edge(cat):
@@ -263,6 +268,30 @@ def test_flared_bowl_is_pinched_at_the_wall_facing_the_robot(cat):
     assert _yaw_diff(est.yaw, closing - math.pi / 2) < math.radians(3.0)
     assert est.width == pytest.approx(v.wall / math.cos(lean) + 0.01, abs=0.003)
     assert est.hang == pytest.approx(spec.size[2] - 0.015, abs=0.002)
+
+
+def test_a_tapered_cup_is_pinched_at_its_wall_not_squeezed_around(cat):
+    # paper-5 (2026-12-05): squeezed around its 8-degree tapered body the stacking cup
+    # slipped out of the pads six times in seven grasps
+    spec = cat.objects["cup"]
+    v = spec.vessel
+    axis = np.array([0.38, 0.02])
+    pts, lean = bowl_cloud(
+        axis, spec.size[1] / 2, v.bottom_diameter / 2, spec.size[2], v.wall, v.bottom, FLOOR
+    )
+    assert lean > GraspConfig().pinch_taper
+    est = estimate_grasp(pts, CAM_ABOVE, "cup", cat)
+    assert est.ok, est.reason
+    toward = -axis / np.linalg.norm(axis)
+    r_pt = spec.size[1] / 2 - 0.5 * v.wall / math.cos(lean) - 0.015 * math.tan(lean)
+    expected = np.array([*(axis + r_pt * toward), FLOOR + spec.size[2] - 0.015])
+    np.testing.assert_allclose(est.position, expected, atol=0.004)
+    assert est.width < 0.03  # across the wall, not the 7 cm body
+    # the mug's straight wall is still closed around
+    mug = cat.objects["mug"]
+    body = cylinder_cloud(axis, mug.size[1] / 2, mug.size[2], FLOOR)
+    est = estimate_grasp(body, CAM_ABOVE, "mug", cat)
+    assert est.ok and est.width == pytest.approx(mug.size[1], abs=0.005)
 
 
 def test_long_thin_rod_is_grasped_across_its_middle(cat):
