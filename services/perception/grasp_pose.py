@@ -121,11 +121,6 @@ class GraspConfig:
     redo_angle: float = 0.12  # rad: re-run the map if the narrowest direction turned more
     max_redo: int = 3  # ... at most this many times
     solid_share: float = 0.6  # footprint / its bounding rectangle: a solid body (a disk: 0.79)
-    # a vessel (catalogue) whose wall narrows toward its foot by more than this (rad) is
-    # pinched at its wall: squeezed around, a tapered body is pressed out of the pads
-    # toward its narrow end (paper-5, 2026-12-05: the stacking cup, 8 deg, slipped out 6
-    # times in 7 grasps, while carried and while the body rose after the grasp)
-    pinch_taper: float = 0.05
 
 
 @dataclass(frozen=True)
@@ -452,8 +447,7 @@ def estimate_grasp(
         return _horizontal(
             obj, filt, up_v, cell, pitch, cfg, object_name, spec, mass, normal_z, top_cut
         )
-    pinch = _tapered(spec, cfg.pinch_taper)
-    return _vertical(obj, filt, up_v, cell, pitch, cfg, object_name, mass, where, normal_z, pinch)
+    return _vertical(obj, filt, up_v, cell, pitch, cfg, object_name, mass, where, normal_z)
 
 
 def _vertical(
@@ -467,9 +461,7 @@ def _vertical(
     mass: float,
     where: str,
     normal_z: float,
-    pinch: bool = False,
 ) -> GraspEstimate:
-    """4.4-4.6 from above; ``pinch``: straight to the wall pinch (a tapered vessel)."""
     n = obj.shape[0]
     if filt.surface is not None:
         up = filt.surface.normal
@@ -514,7 +506,7 @@ def _vertical(
     # around: straight to the wall pinch (a clamp is as wide, but open: try it)
     _, long_side, short_side = min_area_rect(lev[:, :2])
     solid = _footprint_area(lev[:, :2], cell) >= cfg.solid_share * long_side * short_side
-    if (short_side < cc.finger_span or not solid) and not pinch:
+    if short_side < cc.finger_span or not solid:
         for angle in (across, axis):
             best = _vertical_pass(obj, up, reference, angle, cell, cfg, True, pitch)
             if best is not None:
@@ -537,9 +529,8 @@ def _vertical(
                 break
             best = again
     else:
-        # too wide to close around (or tapered): a wall of a vessel, the side facing the
-        # robot (4.5.3's tie-break extended: equal distances to the centre, nearest the
-        # robot first)
+        # too wide to close around: a wall of a vessel, the side facing the robot (4.5.3's
+        # tie-break extended: equal distances to the centre, nearest the robot first)
         fc = _footprint_centre(obj, up, cell)
         radial = math.atan2(float(fc[1]), float(fc[0]))
         rim = _vertical_pass(obj, up, reference, radial, cell, cfg, False, pitch, fc)
@@ -666,17 +657,6 @@ def _horizontal(
         n_points=n,
         normal_z=normal_z,
     )
-
-
-def _tapered(spec: object | None, limit: float) -> bool:
-    """Whether the class is a vessel whose wall narrows toward its foot by more than
-    ``limit`` rad (GraspConfig.pinch_taper)."""
-    vessel = getattr(spec, "vessel", None)
-    if vessel is None:
-        return False
-    top = float(spec.size[1])  # type: ignore[attr-defined]  # (size[0] includes a handle)
-    height = float(spec.size[2])  # type: ignore[attr-defined]
-    return math.atan2(0.5 * (top - float(vessel.bottom_diameter)), height) > limit
 
 
 def _depth_along_view(c: np.ndarray, width: float, spec: object | None) -> float:
