@@ -61,10 +61,24 @@ def summarize(trials: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
+def trial_names(scenarios: list[str] | None, seeds: list[int]) -> list[str]:
+    """The trials to run: the named scenarios, then a random scene per seed; with neither
+    named, the five paper trials, and with seeds alone only those (``--seeds 101`` once ran
+    the five paper trials first)."""
+    default = () if seeds else DEFAULT_SCENARIOS
+    names = list(scenarios if scenarios is not None else default)
+    return names + [f"seed-{s}" for s in seeds]
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="quadmanip bench tidyup", description=__doc__.split("\n")[0])
     ap.add_argument("--json", required=True, help="output JSON (rewritten after every trial)")
-    ap.add_argument("--scenarios", nargs="*", default=None, help="paper-1..5, short-S[xN], ...")
+    ap.add_argument(
+        "--scenarios",
+        nargs="*",
+        default=None,
+        help="paper-1..5, short-S[xN], ... (default: the five paper trials, unless --seeds)",
+    )
     ap.add_argument("--seeds", nargs="*", type=int, default=[], help="random scenes (10 objects)")
     ap.add_argument("--budget-s", type=float, help="the task's time budget per trial (sim s)")
     ap.add_argument("--timeout-s", type=float, default=4 * 3600.0, help="wall limit per trial")
@@ -76,8 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         print(f"quadmanip bench tidyup: {exc}", file=sys.stderr)
         return 2
-    names = list(args.scenarios if args.scenarios is not None else DEFAULT_SCENARIOS)
-    names += [f"seed-{s}" for s in args.seeds]
+    names = trial_names(args.scenarios, args.seeds)
     if not names:
         ap.error("nothing to run: give --scenarios and/or --seeds")
     try:

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from quadmanip.common import messages as m
 from quadmanip.sim.scenarios import get_scenario
-from quadmanip.testbench.bench_tidyup import summarize
+from quadmanip.testbench.bench_tidyup import summarize, trial_names
 from quadmanip.tidyup import TidyReport, TidyRun
 
 pytestmark = pytest.mark.unit
@@ -216,3 +216,10 @@ def test_records_of_no_scenario_object_are_reported_as_what_was_not_there():
     # the objects' own records are not among them
     rep = _scored(_judge(["spoon", "bowl"], ["spoon"]), _progress())
     assert rep.unmatched == []
+
+
+def test_the_benchmark_runs_the_seeds_alone_when_only_seeds_are_given() -> None:
+    assert trial_names(None, [101, 7]) == ["seed-101", "seed-7"]
+    assert trial_names(None, []) == [f"paper-{i}" for i in range(1, 6)]
+    assert trial_names(["paper-3"], [5]) == ["paper-3", "seed-5"]
+    assert trial_names([], []) == []
