@@ -36,8 +36,8 @@ class NodeConfig:
     # phantom "toy guns"). The front camera covers that view.
     gripper_min_look_down: float = 0.8
     # A detection whose extent is longer than extent_ratio x its class's longest side (the
-    # object catalogue) + extent_margin is not remembered (frames.plausible_extent); a
-    # grasp planned higher than that above its surface is refused as not that object
+    # object catalogue) + extent_margin is not remembered (frames.plausible_extent); what
+    # a probe measures taller than that above its surface is refused as not that object
     # (frames.implausible_grasp)
     extent_ratio: float = 1.5
     extent_margin: float = 0.05
