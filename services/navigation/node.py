@@ -63,6 +63,7 @@ from quadmanip.services.navigation.scan import (
     ScanPoints,
     lidar_height_above_base,
     lidar_mount,
+    nearest_return,
     scan_points,
 )
 from quadmanip.services.navigation.scan_anchor import ScanAnchor
@@ -297,9 +298,16 @@ class NavigationNode(Service):
             # before it ended cannot command the robot after the stop (``_send``)
             self.job = None
             self._stop_robot()
-        extra = {}
+        extra: dict[str, object] = {}
         if job.anchor is not None:
             extra = {"anchor_matches": job.anchor.matches, "anchor_refused": job.anchor.refused}
+        if outcome == "blocked":  # where, and what was nearest: the log alone should tell
+            if pose is not None and job.kind == "navigate":  # (a map pose; an approach's: odom)
+                extra["map_pose"] = f"[{pose[0]:.2f}, {pose[1]:.2f}, {pose[2]:.2f}]"
+            scan = self.scan_cache.get()
+            near = None if scan is None else nearest_return(self._scan_points(scan).points)
+            if near is not None:
+                extra["nearest_return"] = f"{near[0]:.2f} m at {math.degrees(near[1]):.0f} deg"
         self.log.info("goal ended", kind=job.kind, outcome=outcome, reason=reason, **extra)
         job.done.set()
 

@@ -12,7 +12,13 @@ from dataclasses import dataclass
 import numpy as np
 from quadmanip.services.navigation.grid import Pose2, transform_points
 
-__all__ = ["ScanPoints", "lidar_height_above_base", "lidar_mount", "scan_points"]
+__all__ = [
+    "ScanPoints",
+    "lidar_height_above_base",
+    "lidar_mount",
+    "nearest_return",
+    "scan_points",
+]
 
 
 def lidar_height_above_base() -> float:
@@ -85,3 +91,16 @@ def scan_points(
     r, a = r[ok], a[ok]
     local = np.stack([r * np.cos(a), r * np.sin(a)], axis=1)
     return ScanPoints(float(stamp), transform_points(mount, local), r, a, mount, float(range_max))
+
+
+def nearest_return(points: np.ndarray) -> tuple[float, float] | None:
+    """(distance m, bearing rad) from the base of the nearest return (base-frame points,
+    N x 2), or None without returns: said when a walk ends blocked, so a log shows what
+    was in the way (paper-4, 2026-12-05: six walks ended "no progress" with nothing in
+    the log to say why)."""
+    pts = np.asarray(points, dtype=float).reshape(-1, 2)
+    if pts.shape[0] == 0:
+        return None
+    d = np.hypot(pts[:, 0], pts[:, 1])
+    i = int(np.argmin(d))
+    return float(d[i]), float(np.arctan2(pts[i, 1], pts[i, 0]))

@@ -15,7 +15,12 @@ import numpy as np
 import pytest
 from quadmanip.services.navigation.amcl import AmclConfig, ParticleFilter
 from quadmanip.services.navigation.grid import Pose2, compose, invert, wrap
-from quadmanip.services.navigation.scan import ScanPoints, lidar_mount, scan_points
+from quadmanip.services.navigation.scan import (
+    ScanPoints,
+    lidar_mount,
+    nearest_return,
+    scan_points,
+)
 from quadmanip.testbench.floor_plan import FloorPlan, simulate_scan, true_floor_plan
 from scipy import ndimage
 
@@ -386,3 +391,11 @@ def test_a_scan_anchor_on_an_empty_scan_refuses_its_matches(house):
     scan = scan_at(plan, mount, (1.5, 1.5, 0.0), np.random.default_rng(0)).points
     assert not anchor.update(scan, (1.01, 1.0, 0.0)) and anchor.refused == 1
     np.testing.assert_allclose(anchor.pose((1.2, 1.0, 0.1)), (1.2, 1.0, 0.1), atol=1e-12)
+
+
+def test_the_nearest_return_is_what_a_blocked_walk_reports():
+    # base-frame returns: a wall 2 m ahead, a box 0.4 m to the left, a chair behind
+    pts = np.array([[2.0, 0.0], [2.0, 0.3], [0.0, 0.4], [-1.0, -1.0]])
+    d, bearing = nearest_return(pts)
+    assert d == pytest.approx(0.4) and bearing == pytest.approx(math.pi / 2)
+    assert nearest_return(np.zeros((0, 2))) is None
