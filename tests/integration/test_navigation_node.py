@@ -178,3 +178,17 @@ def test_precise_approach_in_the_odom_frame(nav):
     time.sleep(0.3)
     err_xy, err_yaw = robot.error_to((START[0] + 0.7, START[1] + 0.3, 0.0))
     assert err_xy <= 0.01 and err_yaw <= math.radians(1.0), (err_xy, math.degrees(err_yaw))
+
+
+def test_a_blocked_approach_logs_its_nearest_lidar_return(nav):
+    bus, robot, proc, _ = nav
+    # a stance against the house's west wall (x = -0.5): the footprint meets it
+    target = robot.odom_of((-0.45, START[1], 0.0))
+    goal = m.ApproachGoal(stamp=0.0, target=np.array(target[:2]), frame="odom", standoff=0.1,
+                          heading=math.pi)  # fmt: skip
+    h = _send(bus, "approach", goal)
+    assert h.accepted, h.reason
+    r = _result(h, proc, 60.0)
+    assert r.status == "failed" and r.reason.startswith("blocked"), r.reason
+    _wait(lambda: any("goal ended" in x and "nearest_return=" in x for x in proc.lines), 5.0,
+          "no nearest return in the log", (proc,))  # fmt: skip
