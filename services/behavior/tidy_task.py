@@ -1738,7 +1738,10 @@ class TidyTask:
             now_dist = _dist(self._pose(), point)
             step = -self.cfg.place_step if reach[0] == TOO_FAR else self.cfg.place_step
             self.robot.approach((point[0], point[1]), max(now_dist + step, 0.1), heading, True)
-            if reach[0] == TOO_FAR and self._blocked_stance(now_dist, point):
+            # a step in that got it no nearer: the stance is blocked
+            if reach[0] == TOO_FAR and (
+                now_dist - _dist(self._pose(), point) < self.cfg.place_blocked_progress
+            ):
                 return self._stance_blocked(point, heading, out.reason)
         self.posture = ""
         # it let go somewhere other than asked (or manipulation, restarted, lost the grip);
@@ -1752,10 +1755,6 @@ class TidyTask:
             self._dropped(f"place: {out.reason}; let go elsewhere", Step.PLACE)
             return Step.GO_TO_VIEWPOINT
         return self._give_up_or(Step.PLACE, f"place: {out.reason}", Step.PLACE)
-
-    def _blocked_stance(self, before: float, point: Point3) -> bool:
-        """Whether a step in toward ``point`` from ``before`` m left the robot no nearer."""
-        return _dist(self._pose(), point) > before - self.cfg.place_blocked_progress
 
     def _stance_blocked(self, point: Point3, heading: float, why: str) -> Step:
         """Something stops the robot short of the place's stance (an object at its feet,
