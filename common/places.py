@@ -14,6 +14,12 @@ map). It is written once per house, like annotating a floor plan; a drafting too
 (``quadmanip map``, from the house description) may write the first version. Services
 read it; none reads the simulator's world.
 
+``keepout = true`` marks a place's area (``size`` around the target) as furniture the
+robot can neither walk through nor under although its LiDAR sees only part of it: a
+table, whose top lies above the scan's plane and whose legs alone are in the map.
+Navigation keeps its paths out of such areas (Nav2's keepout filter); localisation still
+matches the scans against the map alone.
+
 Example::
 
     [places.tray]
@@ -60,6 +66,13 @@ class Place:
     target: tuple[float, float, float]
     size: tuple[float, float] = (0.0, 0.0)
     note: str = ""
+    keepout: bool = False
+
+    @property
+    def area(self) -> tuple[float, float, float, float]:
+        """(x_min, y_min, x_max, y_max) of the place's area in the map."""
+        hx, hy = self.size[0] / 2, self.size[1] / 2
+        return (self.target[0] - hx, self.target[1] - hy, self.target[0] + hx, self.target[1] + hy)
 
     def covers(self, p: Sequence[float], margin: float = 0.0) -> bool:
         """Whether plan point ``p`` lies in the place's area (``size`` around the target's
@@ -104,7 +117,7 @@ def load_places(path: str | Path) -> dict[str, Place]:
         where = f"{path}: places.{name}"
         if not isinstance(p, dict):
             raise PlacesError(f"{where}: must be a table")
-        unknown = set(p) - {"kind", "stand", "target", "size", "note"}
+        unknown = set(p) - {"kind", "stand", "target", "size", "note", "keepout"}
         if unknown:
             raise PlacesError(f"{where}: unknown keys {sorted(unknown)}")
         kind = p.get("kind")
@@ -115,6 +128,11 @@ def load_places(path: str | Path) -> dict[str, Place]:
         sx, sy, syaw = _floats(p["stand"], 3, f"{where}.stand")
         target = _floats(p["target"], 3, f"{where}.target")
         size = _floats(p.get("size", [0.0, 0.0]), 2, f"{where}.size")
+        keepout = p.get("keepout", False)
+        if not isinstance(keepout, bool):
+            raise PlacesError(f"{where}.keepout: want true or false, got {keepout!r}")
+        if keepout and min(size) <= 0.0:
+            raise PlacesError(f"{where}: keepout needs the area's 'size' [x, y], both > 0")
         places[name] = Place(
             name=name,
             kind=kind,
@@ -122,6 +140,7 @@ def load_places(path: str | Path) -> dict[str, Place]:
             target=(target[0], target[1], target[2]),
             size=(size[0], size[1]),
             note=str(p.get("note", "")),
+            keepout=keepout,
         )
     return places
 
@@ -142,6 +161,8 @@ def save_places(path: str | Path, places: list[Place] | dict[str, Place], header
         ]
         if p.size != (0.0, 0.0):
             lines.append(f"size = [{p.size[0]:.3f}, {p.size[1]:.3f}]")
+        if p.keepout:
+            lines.append("keepout = true")
         if p.note:
             lines.append(f'note = "{p.note}"')
     path = Path(path)

@@ -46,10 +46,10 @@ def draft_places(world_to_map: Pose2 = (0.0, 0.0, 0.0)) -> list[Place]:
     places: list[Place] = []
 
     def add(name: str, kind: str, stand: Pose2, target: tuple[float, float, float],
-            size: tuple[float, float] = (0.0, 0.0), note: str = "") -> None:  # fmt: skip
+            size: tuple[float, float] = (0.0, 0.0), keepout: bool = False) -> None:  # fmt: skip
         s = compose(world_to_map, stand)
         t = compose(world_to_map, (target[0], target[1], 0.0))
-        places.append(Place(name, kind, s, (t[0], t[1], target[2]), size, note))
+        places.append(Place(name, kind, s, (t[0], t[1], target[2]), size, keepout=keepout))
 
     def roomiest(cx: float, cy: float, hx: float, hy: float, standoff: float) -> Pose2:
         """Of the four sides of a rectangle, the stand pose facing its centre with the
@@ -68,7 +68,8 @@ def draft_places(world_to_map: Pose2 = (0.0, 0.0, 0.0)) -> list[Place]:
         hx, hy = (s.max[0] - s.min[0]) / 2, (s.max[1] - s.min[1]) / 2
         if s.kind == "table":
             stand = roomiest(cx, cy, hx, hy, TABLE_EDGE_AHEAD + SEARCH_MARGIN)
-            add(s.name, "search_table", stand, (cx, cy, s.z), (2 * hx, 2 * hy))
+            # its top lies above the LiDAR's plane, which sees only the legs
+            add(s.name, "search_table", stand, (cx, cy, s.z), (2 * hx, 2 * hy), keepout=True)
         else:
             stand = roomiest(cx, cy, hx, hy, FLOOR_STANDOFF)
             add(s.name, "search_floor", stand, (cx, cy, 0.0), (2 * hx, 2 * hy))

@@ -3,7 +3,7 @@ in the layering of ROS navigation / Nav2: static, obstacle, inflation).
 
 - static layer: the SLAM map's occupied cells (value >= ``occupied_threshold``); unknown
   cells (-1) count as lethal when ``unknown_is_lethal`` (the planner must not route through
-  space nobody has seen).
+  space nobody has seen); plus the places file's keepout areas (``with_keepouts``).
 - obstacle layer: the current LiDAR's returns. Each update marks the returns within
   ``obstacle_range`` and clears the cells every beam passed through, so a chair that went
   away disappears once a beam sees through its place; an optional persistence forgets
@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,6 +39,7 @@ __all__ = [
     "UNKNOWN",
     "Costmap",
     "CostmapConfig",
+    "with_keepouts",
 ]
 
 FREE = 0
@@ -67,6 +69,30 @@ class CostmapConfig:
     footprint_length: float = 0.419  # m: trunk
     footprint_width: float = 0.2505  # m: trunk
     footprint_margin: float = 0.06  # m: feet stick out ~0.05 m sideways, plus slack
+
+
+def with_keepouts(
+    occupancy: np.ndarray,
+    geometry: GridGeometry,
+    areas: Sequence[tuple[float, float, float, float]],
+) -> np.ndarray:
+    """A copy of the map's ``occupancy`` (int8, 0..100, -1 unknown) with every cell that
+    an area (x_min, y_min, x_max, y_max, map frame) overlaps occupied (100): the static
+    layer of places the LiDAR sees only in part, such as a table whose top lies above
+    the scan (the places file's ``keepout``; paper-4: every walk from the kitchen
+    table's far side to the boxes was planned between its legs, under the top)."""
+    out = np.array(occupancy, copy=True)
+    res = geometry.resolution
+    for x0, y0, x1, y1 in areas:
+        if not (x1 > x0 and y1 > y0):
+            raise ValueError(f"keepout area {(x0, y0, x1, y1)}: want x_min < x_max, y_min < y_max")
+        c0 = max(int(math.floor((x0 - geometry.origin_x) / res)), 0)
+        c1 = min(int(math.ceil((x1 - geometry.origin_x) / res)), geometry.width)
+        r0 = max(int(math.floor((y0 - geometry.origin_y) / res)), 0)
+        r1 = min(int(math.ceil((y1 - geometry.origin_y) / res)), geometry.height)
+        if c1 > c0 and r1 > r0:
+            out[r0:r1, c0:c1] = 100
+    return out
 
 
 class Costmap:

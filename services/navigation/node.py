@@ -43,7 +43,7 @@ from quadmanip.common.service import Input, Output, Service, run_service
 from quadmanip.services.navigation.amcl import ParticleFilter
 from quadmanip.services.navigation.approach import ApproachController, approach_pose
 from quadmanip.services.navigation.config import NavigationConfig
-from quadmanip.services.navigation.costmap import INSCRIBED, Costmap
+from quadmanip.services.navigation.costmap import INSCRIBED, Costmap, with_keepouts
 from quadmanip.services.navigation.frontier import find_frontiers
 from quadmanip.services.navigation.global_planner import plan_path
 from quadmanip.services.navigation.grid import (
@@ -177,9 +177,13 @@ class NavigationNode(Service):
                 x, y, yaw = nc.initial_pose
                 sx, sy, syaw = nc.initial_std
                 self.amcl.initialize((x, y, math.radians(yaw)), (sx, sy, math.radians(syaw)))
-            self.costmap = Costmap(cfg.costmap, self.map_grid, self.map_geo)
-            self.static_costmap = Costmap(cfg.costmap, self.map_grid, self.map_geo)
+            # the costmaps keep paths out of the keepout areas; localisation uses the map
+            keepouts = [p.area for p in self.places.values() if p.keepout]
+            static = with_keepouts(self.map_grid, self.map_geo, keepouts)
+            self.costmap = Costmap(cfg.costmap, static, self.map_geo)
+            self.static_costmap = Costmap(cfg.costmap, static, self.map_geo)
             self.log.info("map loaded", map=str(path), places=len(self.places),
+                          keepouts=len(keepouts),
                           cells=f"{self.map_geo.width}x{self.map_geo.height}",
                           surface="none" if surface is None else
                           f"{surface[1].resolution:g} m, {int(surface[0].sum())} cells")  # fmt: skip

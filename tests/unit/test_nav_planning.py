@@ -485,3 +485,36 @@ def test_an_approach_that_makes_no_progress_is_stalled_after_stall_time() -> Non
     assert not slow.stalled
     slow.reset()
     assert not slow.stalled and slow.error[0] == math.inf
+
+
+def test_paths_go_round_the_tables_the_lidar_sees_only_the_legs_of():
+    """paper-4 (2026-12-05): walks from the kitchen table's far side to the boxes were
+    planned between its legs, under its top, and ended blocked. The places file's
+    keepout areas close the tables; every place's stand stays reachable."""
+    from quadmanip.services.navigation.costmap import with_keepouts
+    from quadmanip.services.navigation.map_io import load_map
+    from quadmanip.services.navigation.node import resolve_map_path
+    from quadmanip.services.navigation.places import load_places, places_path_for
+
+    path = resolve_map_path("maps/house.yaml")
+    occ, geo = load_map(path)
+    places = load_places(places_path_for(path))
+    table = places["kitchen_table"]
+    assert table.keepout
+    x0, y0, x1, y1 = table.area
+
+    def under(p: np.ndarray) -> bool:
+        return bool(np.any((p[:, 0] > x0) & (p[:, 0] < x1) & (p[:, 1] > y0) & (p[:, 1] < y1)))
+
+    start, box = (7.2, 2.5), places["black_box"].stand[:2]
+    bare = plan_path(Costmap(CostmapConfig(), occ, geo), start, box)
+    assert bare.path is not None and under(bare.path)  # the map alone: between the legs
+    kept = Costmap(CostmapConfig(), with_keepouts(occ, geo, [p.area for p in places.values()
+                                                             if p.keepout]), geo)  # fmt: skip
+    r = plan_path(kept, start, box)
+    assert r.reason == "ok" and r.path is not None and not under(r.path)
+    assert r.length > bare.length + 0.5  # round the table's end
+    for p in places.values():
+        assert kept.is_traversable(np.array([p.stand[:2]]))[0], p.name
+    with pytest.raises(ValueError, match="x_min < x_max"):
+        with_keepouts(occ, geo, [(1.0, 1.0, 0.5, 2.0)])

@@ -15,3 +15,23 @@ def test_a_place_covers_its_rectangle_and_the_margin_around_it():
     assert floor.covers((1.15, 1.0), margin=0.3) and not floor.covers((1.05, 1.0), margin=0.3)
     deposit = Place("tray", "deposit", (7.0, 3.22, 1.57), (7.0, 3.65, 0.425))  # no size
     assert deposit.covers((7.0, 3.65)) and not deposit.covers((7.01, 3.65))
+
+
+def test_keepout_areas_load_save_and_refuse_an_area_without_a_size(tmp_path):
+    from quadmanip.common.places import PlacesError, load_places, save_places
+
+    table = Place("kitchen_table", "search_table", (7.2, 2.62, -1.5708), (7.2, 1.9, 0.4),
+                  (0.9, 0.6), keepout=True)  # fmt: skip
+    path = save_places(tmp_path / "a.places.toml", [table])
+    assert "keepout = true" in path.read_text()
+    back = load_places(path)["kitchen_table"]
+    assert back.keepout and back.area == pytest.approx((6.75, 1.6, 7.65, 2.2))
+    bad = tmp_path / "b.places.toml"
+    bad.write_text('[places.t]\nkind = "search_table"\nstand = [0, 0, 0]\ntarget = [1, 1, 0.4]\n'
+                   "keepout = true\n")  # fmt: skip
+    with pytest.raises(PlacesError, match="keepout needs the area's 'size'"):
+        load_places(bad)
+    bad.write_text('[places.t]\nkind = "search_table"\nstand = [0, 0, 0]\ntarget = [1, 1, 0.4]\n'
+                   'size = [1, 1]\nkeepout = "yes"\n')  # fmt: skip
+    with pytest.raises(PlacesError, match="keepout: want true or false"):
+        load_places(bad)
