@@ -42,19 +42,7 @@ def _release_points(place: str, n: int) -> list[tuple[float, float, float]]:
     cfg = load_config(BehaviorConfig, "behavior")
     dep = next(d for d in cfg.deposits.values() if d.place == place)
     spot = load_places(CONFIG_DIR / "maps" / "house.places.toml")[place]
-    heading = spot.stand[2]
-    back = (-math.cos(heading), -math.sin(heading))
-    left = (back[1], -back[0])
-    out = []
-    for k in range(n):
-        side, toward = dep.slots[k % len(dep.slots)]
-        toward += dep.release_toward_robot
-        out.append((
-            spot.target[0] + back[0] * toward + left[0] * side,
-            spot.target[1] + back[1] * toward + left[1] * side,
-            spot.target[2] + dep.release_height,
-        ))  # fmt: skip
-    return out
+    return [dep.release_point(spot, k) for k in range(n)]
 
 
 def drop_into(

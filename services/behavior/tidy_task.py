@@ -209,6 +209,21 @@ class DepositSpec:
     # still rocking when the trial ended.
     slots: tuple[tuple[float, float], ...] = ((0.0, 0.0),)
 
+    def release_point(self, place: Place, n: int) -> Point3:
+        """Where (map) the ``n``-th object put into ``place`` (from 0) is released, facing
+        it from its stand: its slot, nearer the robot by ``release_toward_robot``."""
+        heading = place.stand[2]
+        back = (-math.cos(heading), -math.sin(heading))  # from the target toward the robot
+        left = (back[1], -back[0])  # the robot's left, facing the place
+        side, toward = self.slots[n % len(self.slots)] if self.slots else (0.0, 0.0)
+        toward += self.release_toward_robot
+        tx, ty, tz = place.target
+        return (
+            tx + back[0] * toward + left[0] * side,
+            ty + back[1] * toward + left[1] * side,
+            tz + self.release_height,
+        )
+
 
 @dataclass(frozen=True)
 class DrawerConfig:
@@ -1679,27 +1694,17 @@ class TidyTask:
         rec = self.target
         assert rec is not None
         dep, place = self._deposit()
-        heading = place.stand[2]
-        back = (-math.cos(heading), -math.sin(heading))  # from the target toward the robot
-        left = (back[1], -back[0])  # the robot's left, facing the place
         # the slot: one per object already put here (the target's own record not counted)
         n = sum(
             1 for r in self.report.objects if r is not rec and r.placed and r.place == rec.place
         )
         n += self.slot_skips.get(id(rec), 0)
-        side, toward = dep.slots[n % len(dep.slots)] if dep.slots else (0.0, 0.0)
-        toward += dep.release_toward_robot
-        tx, ty, tz = place.target
-        point = (
-            tx + back[0] * toward + left[0] * side,
-            ty + back[1] * toward + left[1] * side,
-            tz + dep.release_height,
-        )
+        point = dep.release_point(place, n)
         # a long object goes in along the place's long side, across the robot; the others
         # with the fingers along the body y (yaw 0): the carry turned the wrist (manipulation's
         # held_across), the place turns it back
         yaw = math.pi / 2 if self.classes[rec.label].long_side > dep.across_above else 0.0
-        return point, heading, yaw
+        return point, place.stand[2], yaw
 
     def _carry(self) -> Step:
         rec = self.target
