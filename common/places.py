@@ -77,10 +77,8 @@ class Place:
     def covers(self, p: Sequence[float], margin: float = 0.0) -> bool:
         """Whether plan point ``p`` lies in the place's area (``size`` around the target's
         x, y), grown by ``margin`` on every side."""
-        return (
-            abs(p[0] - self.target[0]) <= self.size[0] / 2 + margin
-            and abs(p[1] - self.target[1]) <= self.size[1] / 2 + margin
-        )
+        x0, y0, x1, y1 = self.area
+        return x0 - margin <= p[0] <= x1 + margin and y0 - margin <= p[1] <= y1 + margin
 
 
 def places_path_for(map_yaml: str | Path) -> Path:
