@@ -47,6 +47,9 @@ class ObjectRecord:
     unseen: int = 0  # probes from its probing area that detected no such object
     estimated: bool = False  # perception planned a grasp of it from close by at least once
     side_probe: bool = False  # perception asked for a look from the side (4.3: not level)
+    # the class the detector gave it from close by, in the probing view, when that was not
+    # the class of its track: the memory's votes from afar no longer rename it
+    close_label: str = ""
     time_spent: float = 0.0  # s of robot time spent on it (approach to let go)
     failures: list[Failure] = field(default_factory=list)
     first_position: Point3 = (math.nan, math.nan, math.nan)  # where it was first seen
