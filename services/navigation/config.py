@@ -10,6 +10,7 @@ from quadmanip.services.navigation.costmap import CostmapConfig
 from quadmanip.services.navigation.frontier import FrontierConfig
 from quadmanip.services.navigation.global_planner import PlannerConfig
 from quadmanip.services.navigation.navigator import NavigatorConfig
+from quadmanip.services.navigation.object_layer import ObjectLayerConfig
 from quadmanip.services.navigation.odom_watch import OdomJumpConfig
 from quadmanip.services.navigation.path_follower import FollowerConfig
 from quadmanip.services.navigation.scan_anchor import AnchorConfig
@@ -80,3 +81,4 @@ class NavigationConfig:
     frontier: FrontierConfig = field(default_factory=FrontierConfig)
     explore: ExploreConfig = field(default_factory=ExploreConfig)
     odom_jump: OdomJumpConfig = field(default_factory=OdomJumpConfig)
+    objects: ObjectLayerConfig = field(default_factory=ObjectLayerConfig)

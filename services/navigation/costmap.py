@@ -8,6 +8,8 @@ in the layering of ROS navigation / Nav2: static, obstacle, inflation).
   ``obstacle_range`` and clears the cells every beam passed through, so a chair that went
   away disappears once a beam sees through its place; an optional persistence forgets
   cells nobody has re-observed for a while.
+- object layer: discs at the objects perception has seen on the floor, below the LiDAR's
+  plane (:meth:`Costmap.set_objects`, chosen by :mod:`.object_layer`).
 - inflation: the exact Euclidean distance transform of the lethal cells (scipy) gives each
   cell's clearance; cells closer than ``robot_radius`` (the inscribed radius: the robot's
   centre may not go there) are 253, and a cost that decays exponentially out to
@@ -114,6 +116,7 @@ class Costmap:
         self.static_lethal = occ >= config.occupied_threshold
         self.unknown = occ < 0
         self.obstacles = np.zeros(geometry.shape, dtype=bool)
+        self.objects = np.zeros(geometry.shape, dtype=bool)
         self._seen = np.full(geometry.shape, -np.inf)
         self._cap = max(config.clearance_max, config.inflation_radius)
         self._pad = int(math.ceil(self._cap / geometry.resolution)) + 2
@@ -128,8 +131,8 @@ class Costmap:
 
     @property
     def lethal(self) -> np.ndarray:
-        """Cells the robot's body may not overlap: static + obstacle (+ unknown)."""
-        m = self.static_lethal | self.obstacles
+        """Cells the robot's body may not overlap: static + obstacle + object (+ unknown)."""
+        m = self.static_lethal | self.obstacles | self.objects
         if self.config.unknown_is_lethal:
             m = m | self.unknown
         return m
@@ -166,6 +169,31 @@ class Costmap:
         if changed.any():
             rr, cc = np.nonzero(changed)
             self._rebuild((int(rr.min()), int(rr.max()) + 1, int(cc.min()), int(cc.max()) + 1))
+
+    def set_objects(self, discs: Sequence[tuple[float, float, float]]) -> bool:
+        """Replace the object layer by ``discs`` (x, y, radius; map frame): the cells whose
+        centres lie within a disc. Rebuilds only the window that changed; True if any did."""
+        geo = self.geometry
+        new = np.zeros(geo.shape, dtype=bool)
+        for x, y, r in discs:
+            if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(r) and r > 0.0):
+                raise ValueError(f"object disc {(x, y, r)}: want finite x, y and r > 0")
+            rows, cols = geo.to_cell(np.array([[x - r, y - r], [x + r, y + r]]))
+            r0, c0 = max(int(rows[0]), 0), max(int(cols[0]), 0)
+            r1, c1 = min(int(rows[1]) + 1, geo.height), min(int(cols[1]) + 1, geo.width)
+            if r1 <= r0 or c1 <= c0:
+                continue
+            rr, cc = np.mgrid[r0:r1, c0:c1]
+            centres = geo.cell_center(rr.ravel(), cc.ravel())
+            inside = np.hypot(centres[:, 0] - x, centres[:, 1] - y) <= r
+            new[rr.ravel()[inside], cc.ravel()[inside]] = True
+        changed = new != self.objects
+        if not changed.any():
+            return False
+        self.objects = new
+        rr, cc = np.nonzero(changed)
+        self._rebuild((int(rr.min()), int(rr.max()) + 1, int(cc.min()), int(cc.max()) + 1))
+        return True
 
     def clear_obstacles(self) -> None:
         """Forget the obstacle layer (e.g. after relocalisation)."""
@@ -224,7 +252,7 @@ class Costmap:
         d = d[sl]
         t = (slice(tgt[0], tgt[1]), slice(tgt[2], tgt[3]))
         self.distance[t] = d
-        hard = self.static_lethal[t] | self.obstacles[t]
+        hard = self.static_lethal[t] | self.obstacles[t] | self.objects[t]
         self.cost[t] = self._cost_of(d, hard, self.unknown[t])
         self.version += 1
         self.last_rebuild_ms = (time.perf_counter() - t0) * 1e3

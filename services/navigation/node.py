@@ -56,6 +56,7 @@ from quadmanip.services.navigation.grid import (
 )
 from quadmanip.services.navigation.map_io import load_map, load_surface
 from quadmanip.services.navigation.navigator import Navigator
+from quadmanip.services.navigation.object_layer import Disc, floor_obstacles
 from quadmanip.services.navigation.odom_watch import odometry_jumped
 from quadmanip.services.navigation.places import Place, load_places, places_path_for
 from quadmanip.services.navigation.pose_history import PoseHistory
@@ -128,6 +129,7 @@ class NavigationNode(Service):
         Input("locomotion/odometry", latest_only=True, doc="base pose in odom"),
         Input("locomotion/health", latest_only=True, doc="tripped: stop"),
         Input("navigation/initial_pose", latest_only=True, doc="pose hint: re-localise"),
+        Input("perception/objects", latest_only=True, doc="floor objects: costmap discs"),
     )
     outputs = (
         Output("locomotion/cmd_vel", doc="body velocity while an action runs"),
@@ -199,6 +201,9 @@ class NavigationNode(Service):
         self.health_cache = self.latest("locomotion/health")
         self.hint_cache = self.latest("navigation/initial_pose")
         self.hint_stamp = -math.inf  # of the last hint handled
+        self.objects_cache = self.latest("perception/objects")
+        self.floor_zones = [p.area for p in self.places.values() if p.kind == "search_floor"]
+        self.object_discs: list[Disc] = []
         self.pub_vel = self.publisher("locomotion/cmd_vel")
         self.pub_map = self.publisher("navigation/map")
         self.pub_surface = self.publisher("navigation/surface")
@@ -366,6 +371,28 @@ class NavigationNode(Service):
             sensor = compose(compose(self.map_to_odom, odom), self.mount)
             base = compose(self.map_to_odom, odom)
             self.costmap.update_obstacles(transform_points(base, pts.points), sensor)
+            self._update_objects(base)
+
+    def _update_objects(self, base: Pose2) -> None:
+        """The costmap's object layer from perception's latest memory (object_layer's
+        docstring: the floor objects under the LiDAR's plane), in this node's map frame."""
+        tracks = self.objects_cache.get()
+        if tracks is None or self.costmap is None or not self.floor_zones:
+            return
+        c = np.asarray(tracks.centroids, dtype=float).reshape(-1, 3)
+        xy = transform_points(self.map_to_odom, c[:, :2]) if len(c) else c[:, :2]
+        goal = self.navigator.goal.pose[:2] if self.navigator.goal is not None else None
+        discs = floor_obstacles(
+            np.column_stack([xy, c[:, 2]]),
+            tracks.extents,
+            tracks.confirmed,
+            self.floor_zones,
+            (base[0], base[1]),
+            None if goal is None else (float(goal[0]), float(goal[1])),
+            self.config.objects,
+        )
+        if self.costmap.set_objects(discs):
+            self.object_discs = discs
 
     def _build_mapping_costmap(self) -> None:
         """The costmap of the SLAM map's known area (+ a margin): the planner's graph

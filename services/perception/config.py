@@ -41,6 +41,9 @@ class NodeConfig:
     # (frames.implausible_grasp)
     extent_ratio: float = 1.5
     extent_margin: float = 0.05
+    # ... and what it measures lower than flat_ratio x the class's thinnest side is refused
+    # the same way (a bare patch of floor or table top: nothing stands out of it)
+    flat_ratio: float = 0.5
     view_frames: int = 5  # fresh frames per camera a grasp request looks at for its target
     # a folder: each rejected grasp estimate's inputs (depth, colour, box, K, camera pose,
     # label, surface) are written there as .npz (``quadmanip perception replay`` reads

@@ -127,14 +127,26 @@ def plausible_extent(
 
 
 def implausible_grasp(
-    label: str, height: float, size: tuple[float, ...], ratio: float = 1.5, margin: float = 0.05
+    label: str,
+    height: float,
+    size: tuple[float, ...],
+    ratio: float = 1.5,
+    margin: float = 0.05,
+    flat: float = 0.5,
 ) -> str | None:
     """Why what a probe measured ``height`` m tall above its supporting surface cannot be
-    an object ``label`` of catalogue ``size`` (the :func:`plausible_extent` test on its
-    height), worded as a detection that is not there; None when it can be. paper-5
-    (2026-12-05): four "sugar boxes" at the kitchen table's legs measured about 0.40 m
-    (a sugar box stands 0.175 m); each cost an approach, a grasp and a second probe, while
-    the memory's extents of them had passed its own test."""
+    an object ``label`` of catalogue ``size``, worded as a detection that is not there;
+    None when it can be. Too tall: the :func:`plausible_extent` test on its height (paper-5,
+    2026-12-05: four "sugar boxes" at the kitchen table's legs measured about 0.40 m; a
+    sugar box stands 0.175 m; each cost an approach, a grasp and a second probe). Too flat:
+    lower than ``flat`` x the object's thinnest side, however it lies (seed-103: a sunlit
+    lit patch of the kitchen table top taken for a sugar box measured 0.000 m, probed four
+    times as "no graspable candidate" before it was given up)."""
+    if height < flat * min(size):
+        return (
+            f"not in view: no {label} detected here (what is there stands {height:.3f} m "
+            f"above its surface; a {label} at least {min(size):.3f} m)"
+        )
     if plausible_extent(np.array([height]), size, ratio, margin):
         return None
     tallest = max(size)

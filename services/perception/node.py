@@ -508,8 +508,12 @@ class PerceptionNode(Service):
         why = None
         if spec is not None:  # (a refusal too: "probe horizontally" a 0.40 m "sugar box")
             nc = cfg.node
-            tall = est.height if math.isfinite(est.height) else est.hang
-            why = implausible_grasp(det.label, tall, spec.size, nc.extent_ratio, nc.extent_margin)
+            measured = math.isfinite(est.height)  # (a hang is no height: never "flat")
+            tall = est.height if measured else est.hang
+            flat = nc.flat_ratio if measured else 0.0
+            why = implausible_grasp(
+                det.label, tall, spec.size, nc.extent_ratio, nc.extent_margin, flat
+            )
         if why is not None:
             self.counters["implausible_grasp"] += 1
             raise ActionFailed(f"{img.camera}: {why}")

@@ -518,3 +518,53 @@ def test_paths_go_round_the_tables_the_lidar_sees_only_the_legs_of():
         assert kept.is_traversable(np.array([p.stand[:2]]))[0], p.name
     with pytest.raises(ValueError, match="x_min < x_max"):
         with_keepouts(occ, geo, [(1.0, 1.0, 0.5, 2.0)])
+
+
+# ---------------------------------------------------------------- object layer
+
+
+def test_paths_go_round_the_floor_objects_perception_has_seen():
+    """seed-103 (2026-12-05): a cracker box standing in the living room's way to the
+    doorway, below the LiDAR's plane, was walked into and knocked over (lying, it is too
+    wide for the gripper). Its track is a disc in the costmap: the path passes it by the
+    robot's radius; the track the robot handles (near it) and one at the walk's goal are
+    not discs."""
+    from quadmanip.services.navigation.map_io import load_map
+    from quadmanip.services.navigation.node import resolve_map_path
+    from quadmanip.services.navigation.object_layer import ObjectLayerConfig, floor_obstacles
+    from quadmanip.services.navigation.places import load_places, places_path_for
+
+    path = resolve_map_path("maps/house.yaml")
+    occ, geo = load_map(path)
+    places = load_places(places_path_for(path))
+    zones = [p.area for p in places.values() if p.kind == "search_floor"]
+    cfg = ObjectLayerConfig()
+    box = np.array([[3.65, 1.53, 0.105]])  # the cracker box, standing
+    ext = np.array([[0.16, 0.08, 0.21]])
+    start, goal = (2.2, 1.5), (6.0, 1.8)
+    cm = Costmap(CostmapConfig(), occ, geo)
+    bare = plan_path(cm, start, goal)
+    assert bare.path is not None
+    near = np.hypot(*(bare.path - box[0, :2]).T).min()
+    assert near < CostmapConfig().robot_radius  # the map alone: the body over the box
+    discs = floor_obstacles(box, ext, [True], zones, start, goal, cfg)
+    assert discs == [pytest.approx((3.65, 1.53, 0.13))]
+    assert cm.set_objects(discs) and not cm.set_objects(discs)  # rebuilt once
+    r = plan_path(cm, start, goal)
+    assert r.reason == "ok" and r.path is not None
+    clear = np.hypot(*(r.path - box[0, :2]).T).min()
+    assert clear >= cfg.margin + 0.08 + CostmapConfig().robot_radius - geo.resolution
+    assert not cm.is_traversable(box[:, :2])[0]
+    # what is not a disc: near the robot or the goal, unconfirmed, on a table, off the zones
+    assert floor_obstacles(box, ext, [True], zones, (3.3, 1.5), goal, cfg) == []
+    assert floor_obstacles(box, ext, [True], zones, start, (3.9, 1.6), cfg) == []
+    assert floor_obstacles(box, ext, [False], zones, start, goal, cfg) == []
+    on_table = np.array([[2.6, 3.3, 0.45]])
+    assert floor_obstacles(on_table, ext, [True], zones, start, goal, cfg) == []
+    doorway = np.array([[5.0, 2.0, 0.05]])
+    assert floor_obstacles(doorway, ext, [True], zones, start, goal, cfg) == []
+    # the object gone from the memory: the layer empties, the straight path is back
+    assert cm.set_objects([]) and not cm.objects.any()
+    assert plan_path(cm, start, goal).length == pytest.approx(bare.length)
+    with pytest.raises(ValueError, match="r > 0"):
+        cm.set_objects([(1.0, 1.0, 0.0)])

@@ -198,6 +198,31 @@ def test_a_grasp_far_higher_than_its_class_stands_is_refused_as_not_detected(cat
     assert implausible_grasp("sugar_box", est.height, sugar.size) is None
 
 
+def test_a_grasp_of_a_bare_level_surface_is_refused_as_not_detected(cat):
+    # seed-103 (2026-12-05): the kitchen table's sunlit top, filling the box of a "sugar
+    # box" 15 cm under the gripper camera, was probed four times as "no graspable
+    # candidate": nothing stands out of it
+    sugar = cat.objects["sugar_box"]
+    xs, ys = np.meshgrid(np.linspace(0.29, 0.39, 40), np.linspace(-0.01, 0.13, 40))
+    top = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, FLOOR + 0.40)])
+    est = estimate_grasp(top, CAM_ABOVE + [0.0, 0.0, 0.15], "sugar_box", cat)
+    assert not est.ok and est.height == pytest.approx(0.0, abs=0.002)
+    why = implausible_grasp("sugar_box", est.height, sugar.size)
+    assert why is not None and why.startswith("not in view: no sugar_box detected")
+    # the thinnest object of the catalogue, lying flat, is not refused
+    spoon = cat.objects["spoon"]
+    flat = box_cloud(np.array([0.36, 0.0]), spoon.size, 0.3, FLOOR)
+    est = estimate_grasp(flat, CAM_ABOVE, "spoon", cat)
+    assert est.height == pytest.approx(min(spoon.size), abs=0.004)
+    assert implausible_grasp("spoon", est.height, spoon.size) is None
+    # nor the sugar box lying on its widest side
+    lying = (sugar.size[0], sugar.size[2], sugar.size[1])
+    est = estimate_grasp(
+        box_cloud(np.array([0.36, 0.0]), lying, 0.3, FLOOR), CAM_ABOVE, "sugar_box", cat
+    )
+    assert implausible_grasp("sugar_box", est.height, sugar.size) is None
+
+
 def test_table_under_the_object_wins_over_floor_seen_past_its_edge(cat):
     centre = np.array([0.36, -0.01])
     pts = box_cloud(centre, (0.075, 0.050, 0.050), 0.0, TABLE)
