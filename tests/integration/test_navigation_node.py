@@ -192,3 +192,57 @@ def test_a_blocked_approach_logs_its_nearest_lidar_return(nav):
     assert r.status == "failed" and r.reason.startswith("blocked"), r.reason
     _wait(lambda: any("goal ended" in x and "nearest_return=" in x for x in proc.lines), 5.0,
           "no nearest return in the log", (proc,))  # fmt: skip
+
+
+def test_a_floor_object_in_perceptions_memory_is_a_costmap_obstacle(nav):
+    # the objects lie under the LiDAR's plane: navigation takes them from perception's
+    # memory (seed-103: a cracker box walked into and knocked over)
+    bus, robot, proc, plan = nav
+    spot = np.array([6.5, 3.0])  # the places file's floor zone (kitchen_spot)
+    costmap = bus.latest("navigation/costmap")
+    pose = bus.latest("navigation/pose")
+    _wait(lambda: costmap.get() is not None and pose.get() is not None, 30.0, "no costmap")
+
+    def cost_at(xy: np.ndarray) -> int:
+        g = costmap.get()
+        c = np.floor((xy - g.origin[:2]) / g.resolution).astype(int)
+        return int(g.data[c[1], c[0]])
+
+    assert cost_at(spot) < 100
+    mx, my, myaw = pose.get().map_to_odom  # the track's centroid is in odom
+    d = spot - (mx, my)
+    odom = (
+        math.cos(myaw) * d[0] + math.sin(myaw) * d[1],
+        -math.sin(myaw) * d[0] + math.cos(myaw) * d[1],
+    )
+    pub = bus.publisher("perception/objects")
+
+    def publish(confirmed: int) -> None:
+        pub.publish(
+            m.ObjectTracks(
+                stamp=0.0,
+                ids=np.array([7]),
+                labels=["cracker_box"],
+                centroids=np.array([[odom[0], odom[1], 0.105]]),
+                extents=np.array([[0.16, 0.08, 0.21]], dtype=np.float32),
+                confidences=np.array([0.9], dtype=np.float32),
+                observations=np.array([9]),
+                last_seen=np.array([0.0]),
+                confirmed=np.array([confirmed], dtype=np.uint8),
+                map_centroids=np.array([[*spot, 0.105]]),
+                in_map=True,
+            )
+        )
+
+    def marked() -> bool:
+        publish(1)
+        return cost_at(spot) == 100
+
+    _wait(marked, 20.0, "the object never reached the costmap", (proc,))
+    assert cost_at(spot + (0.6, 0.0)) < 100  # a disc, not the whole zone
+
+    def cleared() -> bool:
+        publish(0)  # no longer confirmed: gone from the layer
+        return cost_at(spot) < 100
+
+    _wait(cleared, 20.0, "the object never left the costmap", (proc,))
