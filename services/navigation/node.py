@@ -56,7 +56,7 @@ from quadmanip.services.navigation.grid import (
 )
 from quadmanip.services.navigation.map_io import load_map, load_surface
 from quadmanip.services.navigation.navigator import Navigator
-from quadmanip.services.navigation.object_layer import Disc, floor_obstacles
+from quadmanip.services.navigation.object_layer import floor_obstacles
 from quadmanip.services.navigation.odom_watch import odometry_jumped
 from quadmanip.services.navigation.places import Place, load_places, places_path_for
 from quadmanip.services.navigation.pose_history import PoseHistory
@@ -203,7 +203,6 @@ class NavigationNode(Service):
         self.hint_stamp = -math.inf  # of the last hint handled
         self.objects_cache = self.latest("perception/objects")
         self.floor_zones = [p.area for p in self.places.values() if p.kind == "search_floor"]
-        self.object_discs: list[Disc] = []
         self.pub_vel = self.publisher("locomotion/cmd_vel")
         self.pub_map = self.publisher("navigation/map")
         self.pub_surface = self.publisher("navigation/surface")
@@ -391,8 +390,7 @@ class NavigationNode(Service):
             None if goal is None else (float(goal[0]), float(goal[1])),
             self.config.objects,
         )
-        if self.costmap.set_objects(discs):
-            self.object_discs = discs
+        self.costmap.set_objects(discs)
 
     def _build_mapping_costmap(self) -> None:
         """The costmap of the SLAM map's known area (+ a margin): the planner's graph
