@@ -829,6 +829,9 @@ def test_a_false_detection_is_given_up_after_two_probes_that_see_nothing() -> No
     assert rec.unseen == CFG.task.max_unseen == 2
     assert len(rec.failures) == 2 and "false detection" in rec.failures[-1].reason
     assert _calls(house, "estimate_grasp").count(("clamp", 90)) == 2
+    # the class in view from close by names it only within estimate_gate of the track:
+    # the real object 0.6 m away is not what this phantom is renamed to
+    assert not rec.close_label
     for t in things:  # the real ones are tidied all the same
         assert _record(report, t.label).placed
 
@@ -848,20 +851,6 @@ def test_an_object_of_another_class_from_close_by_goes_where_that_class_goes() -
     assert ("estimate_grasp", ("bowl", 5)) in house.calls
     assert ("estimate_grasp", ("", -1)) in house.calls
     for t in things:  # the real bowl is still tidied, as a bowl
-        assert _record(report, t.label).placed
-
-
-def test_a_false_detection_with_another_object_near_is_not_renamed_to_it() -> None:
-    # the class in view from close by names the object only within estimate_gate of the
-    # track: a phantom 0.6 m from a real object is still given up
-    things = _things()[:2]
-    ghost = replace(things[0], track_id=90, label="clamp")
-    ghost.position = (things[0].position[0] + 0.6, things[0].position[1], 0.05)
-    house = FakeHouse(things, phantoms=[ghost])
-    report = _task(house).run()
-    rec = _record(report, "clamp")
-    assert rec.given_up and not rec.close_label
-    for t in things:
         assert _record(report, t.label).placed
 
 
