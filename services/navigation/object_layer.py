@@ -1,10 +1,11 @@
 """The objects perception has seen on the floor, as obstacles for the planner.
 
 The LiDAR's plane lies 0.375 m above the floor: the household objects the robot tidies are
-below it, and the map and the obstacle layer do not hold them. Walking between rooms the
-robot went straight through them: a cracker box standing in the living room's path to the
-doorway was knocked over (it lies 0.06 m tall on a 0.16 x 0.21 m face, wider than the
-gripper opens) in seed-103 twice and seed-110, and was never tidied. Nav2 adds such
+below it, and the map and the obstacle layer do not hold them. A cracker box standing in
+the living room's path to the doorway was found lying (0.06 m tall on a 0.16 x 0.21 m
+face, wider than the gripper opens) in two runs of seed-103 and never tidied: the planner
+had sent the robot's walks to the kitchen right over it (seed-110 lost one 0.13 m from
+there, never grasped). Nav2 adds such
 obstacles from a depth camera's point cloud; here perception already keeps them (its
 object memory, ``perception/objects``), so the costmap takes a disc per confirmed floor
 object instead.
