@@ -130,9 +130,14 @@ class Costmap:
     # ------------------------------------------------------------------ layers
 
     @property
+    def occupied(self) -> np.ndarray:
+        """Cells something stands in: static + obstacle + object layers."""
+        return self.static_lethal | self.obstacles | self.objects
+
+    @property
     def lethal(self) -> np.ndarray:
-        """Cells the robot's body may not overlap: static + obstacle + object (+ unknown)."""
-        m = self.static_lethal | self.obstacles | self.objects
+        """Cells the robot's body may not overlap: the occupied ones (+ unknown)."""
+        m = self.occupied
         if self.config.unknown_is_lethal:
             m = m | self.unknown
         return m
@@ -252,7 +257,7 @@ class Costmap:
         d = d[sl]
         t = (slice(tgt[0], tgt[1]), slice(tgt[2], tgt[3]))
         self.distance[t] = d
-        hard = self.static_lethal[t] | self.obstacles[t] | self.objects[t]
+        hard = self.occupied[t]
         self.cost[t] = self._cost_of(d, hard, self.unknown[t])
         self.version += 1
         self.last_rebuild_ms = (time.perf_counter() - t0) * 1e3
