@@ -53,9 +53,9 @@ MPC_PHASES = ("balance", "walk", "stopping")
 class Limits:
     """Accepted command ranges."""
 
-    vx: float = 0.6
+    vx: float = 0.9
     vy: float = 0.4
-    wz: float = 1.2
+    wz: float = 1.6
     z_crouch: float = 0.12  # how far the body may go down (m)
     z_raise: float = 0.03  # how far up (m)
     shift: float = 0.06  # COM shift in x and y (m)

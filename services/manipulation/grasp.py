@@ -239,9 +239,10 @@ class GraspPrimitive(Primitive):
         plan, g = self.plan, self.cfg.grasp
         self.stage("grasp_ready: open gripper, moveCOM", 0.05)
         yield []
-        yield from self.open_gripper(plan.open_gap)
         b = plan.body_ready
-        yield from self.move_body(b.x_offset, b.y_offset, b.z_offset)
+        yield from self.move_body(
+            b.x_offset, b.y_offset, b.z_offset, during=self.open_gripper(plan.open_gap)
+        )
         self.stage("grasp_ready: arm above/behind the grasp point", 0.2)
         yield from self.move_joints(np.asarray(plan.q_ready))
         self.stage("grasp: approach", 0.4)

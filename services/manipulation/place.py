@@ -173,8 +173,7 @@ class PlacePrimitive(Primitive):
             yield from self.close_gripper()
         if self.monitor.state is GripState.HOLDING:
             raise PrimitiveFailed("object_stuck: the fingers still hold something after release")
-        yield from self.open_gripper()
-        yield from self.move_body(0.0, 0.0, 0.0)
+        yield from self.move_body(0.0, 0.0, 0.0, during=self.open_gripper())
 
     def _rise(self, height: float) -> Script:
         """The tool straight up by ``height``, or by as much of it as the arm reaches."""

@@ -331,15 +331,25 @@ class Primitive:
             if obs.t >= t_end:
                 return
 
-    def move_body(self, x: float = 0.0, y: float = 0.0, z: float = 0.0) -> Script:
+    def move_body(
+        self, x: float = 0.0, y: float = 0.0, z: float = 0.0, during: Script | None = None
+    ) -> Script:
         """Requests a body offset (moveCOM) with a level trunk and gives locomotion time
-        to reach it."""
+        to reach it. ``during`` (a gripper move) runs while the trunk moves: the settle
+        time counts from the request, so a gripper that opens meanwhile costs no time."""
         new = BodyPoseRequest(x_offset=x, y_offset=y, z_offset=z)
-        if new == self.body:
-            return
-        self.body = new
-        yield [new]
-        yield from self.wait(self.cfg.grasp.body_settle_time)
+        if new != self.body:
+            assert self._last_obs is not None
+            t_end = self._last_obs.t + self.cfg.grasp.body_settle_time
+            self.body = new
+            yield [new]
+        else:
+            t_end = -math.inf
+        if during is not None:
+            yield from during
+        assert self._last_obs is not None
+        if self._last_obs.t < t_end:
+            yield from self.wait(t_end - self._last_obs.t)
 
     def open_gripper(self, gap: float | None = None, settle: float = 0.1) -> Script:
         """Opens to ``gap`` (default: fully), waits until the fingers got there (they move

@@ -142,6 +142,25 @@ class Costmap:
             m = m | self.unknown
         return m
 
+    def lethal_except_near(self, xy: tuple[float, float], radius: float) -> np.ndarray:
+        """:attr:`lethal` without the object layer's cells within ``radius`` of ``xy``
+        (the object an approach goes to is no obstacle to it)."""
+        geo = self.geometry
+        objects = self.objects.copy()
+        cells = geo.to_cell(np.array([[xy[0] - radius, xy[1] - radius],
+                                      [xy[0] + radius, xy[1] + radius]]))  # fmt: skip
+        r0, c0 = max(int(cells[0][0]), 0), max(int(cells[1][0]), 0)
+        r1, c1 = min(int(cells[0][1]), geo.height - 1), min(int(cells[1][1]), geo.width - 1)
+        if r0 <= r1 and c0 <= c1:
+            rows, cols = np.mgrid[r0 : r1 + 1, c0 : c1 + 1]
+            centres = geo.cell_center(rows.ravel(), cols.ravel()) - (xy[0], xy[1])
+            near = (np.hypot(centres[:, 0], centres[:, 1]) <= radius).reshape(rows.shape)
+            objects[r0 : r1 + 1, c0 : c1 + 1] &= ~near
+        m = self.static_lethal | self.obstacles | objects
+        if self.config.unknown_is_lethal:
+            m = m | self.unknown
+        return m
+
     def update_obstacles(
         self,
         points_map: np.ndarray,
@@ -299,23 +318,28 @@ class Costmap:
             ok |= c == UNKNOWN
         return ok
 
-    def footprint_free(self, pose: Pose2) -> bool:
-        """Whether the oriented trunk rectangle (+ margin, + half a cell for the cells'
-        extent) at ``pose`` overlaps no lethal cell. Tighter than the inscribed circle for
-        in-place turns and the final approach beside furniture."""
+    def footprint_free(
+        self, pose: Pose2, margin: float | None = None, lethal: np.ndarray | None = None
+    ) -> bool:
+        """Whether the oriented trunk rectangle (+ ``margin``, default the footprint
+        margin, + half a cell for the cells' extent) at ``pose`` overlaps no lethal cell
+        (of ``lethal``, a mask of the grid's shape, when given). Tighter than the inscribed
+        circle for in-place turns and the final approach beside furniture."""
         cfg, geo = self.config, self.geometry
-        hx = 0.5 * cfg.footprint_length + cfg.footprint_margin + 0.5 * geo.resolution
-        hy = 0.5 * cfg.footprint_width + cfg.footprint_margin + 0.5 * geo.resolution
+        pad = cfg.footprint_margin if margin is None else margin
+        hx = 0.5 * cfg.footprint_length + pad + 0.5 * geo.resolution
+        hy = 0.5 * cfg.footprint_width + pad + 0.5 * geo.resolution
         rad = math.hypot(hx, hy)
         x, y, yaw = float(pose[0]), float(pose[1]), float(pose[2])
-        if self.clearance(np.array([[x, y]]))[0] > rad + geo.resolution:
+        if lethal is None and self.clearance(np.array([[x, y]]))[0] > rad + geo.resolution:
             return True
+        mask = self.lethal if lethal is None else lethal
         (r0, r1), (c0, c1) = (
             geo.to_cell(np.array([[x - rad, y - rad], [x + rad, y + rad]]))[i] for i in (0, 1)
         )
         if r0 < 0 or c0 < 0 or r1 >= geo.height or c1 >= geo.width:
             return False  # the footprint reaches off the map
-        rr, cc = np.nonzero(self.lethal[r0 : r1 + 1, c0 : c1 + 1])
+        rr, cc = np.nonzero(mask[r0 : r1 + 1, c0 : c1 + 1])
         if not len(rr):
             return True
         centres = geo.cell_center(rr + r0, cc + c0) - (x, y)

@@ -41,7 +41,11 @@ from quadmanip.common.config import CONFIG_DIR
 from quadmanip.common.rotations import quat_to_mat, yaw_from_quat
 from quadmanip.common.service import Input, Output, Service, run_service
 from quadmanip.services.navigation.amcl import ParticleFilter
-from quadmanip.services.navigation.approach import ApproachController, approach_pose
+from quadmanip.services.navigation.approach import (
+    ApproachController,
+    approach_pose,
+    free_approach_heading,
+)
 from quadmanip.services.navigation.config import NavigationConfig
 from quadmanip.services.navigation.costmap import INSCRIBED, Costmap, with_keepouts
 from quadmanip.services.navigation.frontier import find_frontiers
@@ -646,6 +650,7 @@ class NavigationNode(Service):
                 heading += odom[2]
             if g.face_target:
                 heading = math.atan2(t[1] - odom[1], t[0] - odom[0])
+                heading = self._free_heading(t, float(g.standoff), heading, odom)
             job.target = approach_pose(t, float(g.standoff), heading)
             job.total = max(math.hypot(job.target[0] - odom[0], job.target[1] - odom[1]), 1e-3)
             self.approacher.reset()
@@ -691,6 +696,36 @@ class NavigationNode(Service):
             return
         if job.kind == "navigate":
             self._finish(job, st.state, st.reason, pose)
+
+    def _free_heading(
+        self, target: tuple[float, float], standoff: float, heading: float, odom: Pose2
+    ) -> float:
+        """A face-the-target approach's heading, turned about the target when facing it
+        from here the stance (or the way to it) meets an obstacle of the costmap within
+        the approach's guard (``ApproachConfig.free_turns``; the objects layer counts, but
+        not the target's own disc)."""
+        cm, turns = self.costmap, self.config.approach.free_turns
+        if cm is None or not turns:
+            return heading
+        in_map = compose(self.map_to_odom, (target[0], target[1], 0.0))
+        lethal = cm.lethal_except_near(in_map[:2], self.config.objects.max_radius + 0.05)
+        guard = self.config.node.approach_guard
+
+        def free(pose: Pose2, margin: float) -> bool:
+            return cm.footprint_free(compose(self.map_to_odom, pose), margin, lethal)
+
+        turned = free_approach_heading(
+            free, odom, target, standoff, heading, turns, guard, self.config.approach.free_margin
+        )
+        if turned is None:
+            return heading
+        if abs(wrap(turned - heading)) > 1e-9:
+            self.log.info(
+                "approach stance turned",
+                by_deg=round(math.degrees(wrap(turned - heading)), 1),
+                why="facing the target from here the stance meets an obstacle",
+            )
+        return turned
 
     def _step_approach(self, job: _Job, now: float, odom: Pose2) -> None:
         g = job.goal

@@ -43,12 +43,12 @@ CollisionCheck = Callable[[Pose2, np.ndarray], bool]
 
 @dataclass(frozen=True)
 class FollowerConfig:
-    """Path follower parameters (limits within locomotion's vx 0.6, vy 0.4, wz 1.2)."""
+    """Path follower parameters (limits within locomotion's vx 0.9, vy 0.4, wz 1.6)."""
 
     dt: float = 0.05  # s: control period (when ``command`` is not told otherwise)
-    max_vx: float = 0.5
+    max_vx: float = 0.8
     max_vy: float = 0.3
-    max_wz: float = 1.0
+    max_wz: float = 1.4
     max_ax: float = 1.0  # m/s^2
     max_ay: float = 0.8  # m/s^2
     max_aw: float = 3.0  # rad/s^2
