@@ -97,6 +97,10 @@ class TidyReport:
     # release point is as good as this)
     localisation_error_m: dict[str, float] = field(default_factory=dict)
     place_localisation_error_m: dict[str, float] = field(default_factory=dict)
+    # how far navigation's map->odom correction moved from its first localised value: the
+    # odometry's drift over the trial, which perception's odom-frame tracks must follow
+    # (xy_max_m at the correction's origin, yaw_max_deg)
+    odom_drift: dict[str, float] = field(default_factory=dict)
     # locomotion's own deadline counters at the end (locomotion/health; totals since its
     # last start): whether the controller kept up, above all in realtime mode, where the
     # sim does not wait for it
@@ -386,6 +390,8 @@ class TidyRun:
             self.film.attach(self.bus)
         loc_errors: list[float] = []
         place_errors: list[float] = []
+        corr0: np.ndarray | None = None
+        drift_xy = drift_yaw = 0.0
         cpu0, t_cpu0 = self._cpu(), time.monotonic()
         c0 = clock.get()
         sim0 = float(c0.stamp) if c0 is not None else 0.0
@@ -402,7 +408,13 @@ class TidyRun:
             self._count_falls(base.get())
             if self.film is not None and p is not None:
                 self.film.on_step(now_sim - sim0, str(p.step))
-            err = _localisation_error(list(true_xy), nav_pose.get())
+            np_ = nav_pose.get()
+            if np_ is not None and np_.status == "localized":
+                corr = np.asarray(np_.map_to_odom, dtype=float)
+                corr0 = corr if corr0 is None else corr0
+                drift_xy = max(drift_xy, float(np.hypot(*(corr[:2] - corr0[:2]))))
+                drift_yaw = max(drift_yaw, abs(math.remainder(corr[2] - corr0[2], math.tau)))
+            err = _localisation_error(list(true_xy), np_)
             if err is not None:
                 loc_errors.append(err)
                 if p is not None and str(p.step).startswith("place"):
@@ -441,6 +453,9 @@ class TidyRun:
         rep.controller = _controller(health.get())
         rep.localisation_error_m = _spread(loc_errors)
         rep.place_localisation_error_m = _spread(place_errors)
+        if corr0 is not None:
+            rep.odom_drift = {"xy_max_m": round(drift_xy, 4),
+                              "yaw_max_deg": round(math.degrees(drift_yaw), 2)}  # fmt: skip
         c = clock.get()
         rep.sim_time_s = (float(c.stamp) if c is not None else 0.0) - sim0
         rep.rtf = rep.sim_time_s / max(time.monotonic() - w_run0, 1e-6)

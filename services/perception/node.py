@@ -57,7 +57,13 @@ from quadmanip.services.perception.frames import (
 )
 from quadmanip.services.perception.grasp_pose import GraspEstimate, estimate_grasp_from_depth
 from quadmanip.services.perception.handle_locator import locate_handle
-from quadmanip.services.perception.object_memory import CameraView, ObjectMemory, Observation
+from quadmanip.services.perception.object_memory import (
+    CameraView,
+    MapAnchor,
+    ObjectMemory,
+    Observation,
+    planar_pose_matrix,
+)
 from quadmanip.services.perception.rejections import save_rejection
 
 __all__ = ["PerceptionNode", "main"]
@@ -132,6 +138,7 @@ class PerceptionNode(Service):
         self.t_objects = -math.inf
         self.lowstate = self.latest("sim/lowstate")
         self.map_pose = self.latest("navigation/pose")
+        self.map_anchor = MapAnchor()
         self.pub_det = self.publisher("perception/detections")
         self.pub_obj = self.publisher("perception/objects")
         for cam, topic in CAMERA_TOPICS.items():
@@ -278,6 +285,7 @@ class PerceptionNode(Service):
                 for x in sized
             ]
             with self.lock:
+                self._follow_the_map()
                 self.memory.update(obs, view, img.stamp)
         where = {id(x.detection): x for x in located}
         n = len(dets)
@@ -323,18 +331,27 @@ class PerceptionNode(Service):
             self._publish_objects()
             self.t_objects = now
 
+    def _follow_the_map(self) -> None:
+        """The tracks follow navigation's map->odom correction (``MapAnchor``). Caller
+        holds the lock."""
+        mp = self.map_pose.get()
+        ok = mp is not None and mp.status in ("localized", "mapping")
+        move = self.map_anchor.step(mp.map_to_odom if ok and mp is not None else None)
+        if move is not None:
+            self.memory.move_frame(move)
+
     def _publish_objects(self) -> None:
         mp = self.map_pose.get()
         with self.lock:
+            self._follow_the_map()  # also while no frame comes (the cameras stopped)
             tracks = self.memory.tracks(confirmed_only=False)
         n = len(tracks)
         cents = np.array([t.centroid for t in tracks], float).reshape(n, 3)
         in_map = mp is not None and mp.status != "lost"
         if in_map:
-            x, y, yaw = (float(v) for v in mp.map_to_odom)
-            c, s = math.cos(yaw), math.sin(yaw)
-            rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-            map_c = cents @ rot.T + np.array([x, y, 0.0])
+            se2 = planar_pose_matrix(*(float(v) for v in mp.map_to_odom))
+            map_c = cents.copy()
+            map_c[:, :2] = cents[:, :2] @ se2[:2, :2].T + se2[:2, 2]
         else:
             map_c = cents.copy()
         self.pub_obj.publish(

@@ -145,7 +145,41 @@ def test_detects_remembers_and_grasps_then_survives_bad_input(
         assert not h.accepted and "unknown class" in h.reason
         h, _ = _result(bus, "estimate_grasp", m.GraspRequest(stamp=0.0, track_id=9999), proc)
         assert not h.accepted and "unknown track" in h.reason
-        # 5. bad frames: a reason, no crash
+        # 5. navigation's map->odom correction changes (the odometry drifted): the tracks
+        # keep their map positions, their odom positions move (cameras off: nothing seen
+        # meanwhile, where the fake robot's unmoving odometry would put it elsewhere)
+        robot.cameras_on = False
+        pose_pub = bus.publisher("navigation/pose")
+
+        def localized(correction) -> m.MapPose:
+            return m.example(m.MapPose, stamp=robot.t, map_to_odom=np.array(correction),
+                             status="localized")  # fmt: skip
+
+        def track_of(msg: m.ObjectTracks | None, tid: int):
+            if msg is None or tid not in list(msg.ids):
+                return None
+            i = list(msg.ids).index(tid)
+            return msg.centroids[i].copy(), msg.map_centroids[i].copy(), bool(msg.in_map)
+
+        t0, t1 = (0.0, 0.0, 0.0), (0.12, -0.09, 0.05)
+        pose_pub.publish(localized(t0))
+        _wait(lambda: (x := track_of(objects.get(), tid)) is not None and x[2], 10.0,
+              "no map-frame track", proc)  # fmt: skip
+        odom0, map0, _ = track_of(objects.get(), tid)
+        np.testing.assert_allclose(map0, odom0, atol=1e-9)
+        pose_pub.publish(localized(t1))
+        # where the map position lies in the drifted odom frame
+        c, s_ = np.cos(t1[2]), np.sin(t1[2])
+        d = map0[:2] - np.array(t1[:2])
+        expected = np.array([c * d[0] + s_ * d[1], -s_ * d[0] + c * d[1]])
+        assert np.linalg.norm(expected - odom0[:2]) > 0.02
+        _wait(lambda: (x := track_of(objects.get(), tid)) is not None
+              and np.linalg.norm(x[0][:2] - expected) < 1e-6, 10.0,
+              "the track did not follow the correction", proc)  # fmt: skip
+        _, map1, _ = track_of(objects.get(), tid)
+        np.testing.assert_allclose(map1, map0, atol=1e-6)
+        robot.cameras_on = True
+        # 6. bad frames: a reason, no crash
         bad = _frame(view)
         for frame, why in (
             (m.RgbdImage(**{**bad.__dict__, "depth": np.zeros_like(view.depth)}), "empty depth"),
@@ -157,7 +191,7 @@ def test_detects_remembers_and_grasps_then_survives_bad_input(
             time.sleep(0.5)
             _, r = _result(bus, "estimate_grasp", m.GraspRequest(stamp=0.0, label=OBJECT), proc)
             assert r is not None and r.status == "failed" and why in r.reason, (why, r)
-        # 6. the camera stops: goals are rejected with the reason, the node lives on
+        # 7. the camera stops: goals are rejected with the reason, the node lives on
         robot.cameras_on = False
         time.sleep(1.5)
         h, _ = _result(bus, "estimate_grasp", m.GraspRequest(stamp=0.0, label=OBJECT), proc)

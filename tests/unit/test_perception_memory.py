@@ -10,9 +10,11 @@ import pytest
 from quadmanip.common.rotations import mat_to_quat, quat_from_yaw, rot_z
 from quadmanip.services.perception.object_memory import (
     CameraView,
+    MapAnchor,
     MemoryConfig,
     ObjectMemory,
     Observation,
+    planar_pose_matrix,
 )
 
 pytestmark = pytest.mark.unit
@@ -330,3 +332,34 @@ def test_config_is_checked() -> None:
         MemoryConfig(min_gate=0.5, max_gate=0.1)
     with pytest.raises(ValueError):
         MemoryConfig(confirm_hits=0)
+
+
+def test_tracks_stay_where_they_lie_in_the_map_while_the_odometry_drifts() -> None:
+    """seed-106 (2026-12-05): tracks kept in odom drifted with the odometry; objects seen
+    long before were approached 0.10-0.23 m beside where they lay. Navigation's map->odom
+    correction changes by the drift; the anchor moves every track with it, so that its
+    map position stays, and a camera at the object's true place sees it there."""
+    mem = ObjectMemory(MemoryConfig())
+    truth_map = np.array([2.0, 0.5, 0.05])
+    t0 = (0.0, 0.0, 0.0)
+    (tid,) = confirmed(mem, truth_map.copy())  # odom = map at the start
+    anchor = MapAnchor()
+    assert anchor.step(t0) is None  # the first correction: nothing to move
+    assert anchor.step(t0) is None and anchor.step(None) is None  # unchanged, or not localised
+    # the odometry drifted: 0.15 m and 3 degrees over the walk; the correction takes it out
+    t1 = (0.12, -0.09, math.radians(3.0))
+    move = anchor.step(t1)
+    assert move is not None
+    mem.move_frame(move)
+    c = mem.get(tid).centroid
+    in_map = planar_pose_matrix(*t1) @ np.array([c[0], c[1], 1.0])
+    np.testing.assert_allclose(in_map[:2], truth_map[:2], atol=1e-9)
+    assert c[2] == truth_map[2]
+    assert np.linalg.norm(c[:2] - truth_map[:2]) > 0.05  # it did move in odom
+    # seen again where it lies (the odom position of its map place): the same track, no miss
+    odom_now = np.linalg.inv(planar_pose_matrix(*t1)) @ np.array([*truth_map[:2], 1.0])
+    seen = np.array([odom_now[0], odom_now[1], truth_map[2]])
+    ids = mem.update([obs(seen)], view(depth=depth_of(4.0)), 1.0)
+    assert ids == [tid] and mem.get(tid).misses == 0
+    with pytest.raises(ValueError, match="3x3"):
+        mem.move_frame(np.eye(2))
