@@ -1469,7 +1469,8 @@ class TidyTask:
         out = self.robot.approach(
             (rec.position[0], rec.position[1]), probe.standoff, self._facing(rec, probe.standoff)
         )
-        if not out.ok and FOOTPRINT in out.reason:
+        table = self._table_of(rec)
+        if not out.ok and FOOTPRINT in out.reason and table is None:
             # it stands against furniture (by a deposit place, a table's leg), and the
             # approach's straight line leads into it: the planner's path leads clear first
             # (paper-2: four such stops within a second gave an object up). After a walk,
@@ -1487,11 +1488,12 @@ class TidyTask:
                     probe.standoff,
                     self._facing(rec, probe.standoff),
                 )
-        table = self._table_of(rec)
         if not out.ok and FOOTPRINT in out.reason and table is not None:
             # square to the table the stance meets a leg (paper-5: a mug 13 cm in from the
             # kitchen table's end, stopped four times and given up): stand turned about
             # the object, the stance moved toward the table's middle, between its legs.
+            # At once: a walk back to the table's stand and the same square approach met
+            # the same leg (seed-107, 2026-12-05: a sugar box, twice, 26 s each).
             # The stop left the robot against the leg, where every approach stops at once
             # (the first such trial: three slants refused within 0.1 s): walk clear first
             for heading in self._table_slants(rec, table):
