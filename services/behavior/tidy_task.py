@@ -1752,6 +1752,11 @@ class TidyTask:
         assert rec is not None
         dep, place = self._deposit()
         self._posture(dep.carry_posture)
+        if self.robot.holding() is False:
+            # it slipped out as the arm moved to carry it (seed-107: a cup, then a walk
+            # to the green box with empty fingers): it lies here, look here
+            self._dropped("dropped while moving to carry it", Step.CARRY, here_picked=True)
+            return Step.GO_TO_VIEWPOINT
         self._say(f"{rec.name} to {place.name}")
         out = self._walk_to_stand(place)
         if self.robot.holding() is False:
@@ -1827,16 +1832,19 @@ class TidyTask:
         self.done_tracks.discard(rec.track_id)
         self.last_released = None
 
-    def _dropped(self, why: str, step: Step, record: bool = True) -> None:
+    def _dropped(
+        self, why: str, step: Step, record: bool = True, here_picked: bool = False
+    ) -> None:
         """The held object fell: record it (unless ``record`` is False: the caller did),
         and search again where it may lie (the zones near the way from where it was
-        picked up to here)."""
+        picked up to here). Its track where it was picked up is stale, unless it fell
+        right there (``here_picked``): then that track is the object."""
         rec = self.target
         assert rec is not None
         with self._lock:
             rec.dropped = True
         self.last_released = rec
-        if rec.track_epoch == self.track_epoch:
+        if rec.track_epoch == self.track_epoch and not here_picked:
             for obj in self.robot.objects():
                 if obj.track_id == rec.track_id:
                     self.stale[rec.track_id] = obj.position

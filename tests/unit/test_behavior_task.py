@@ -168,6 +168,9 @@ class FakeHouse:
         self.stuck_drawers: dict[str, int] = {}  # pulls of this drawer manipulation refuses
         self.arm_pull = 1.0  # m: longer pulls are refused as beyond the arm's reach
         self.unsettled = 0  # approaches that end near the goal but not within tolerance
+        # objects that slip out of the fingers as the arm moves to a posture (at the
+        # robot's feet), this many times each
+        self.posture_drops: dict[str, int] = {}
         # the robot stands against furniture: an approach from here stops at once on
         # navigation's footprint guard, until a walk (navigate_to) leads it clear
         self.by_furniture = False
@@ -431,6 +434,11 @@ class FakeHouse:
             return refused
         self.t += 1.0
         self.posture = posture
+        if self.held is not None and self.posture_drops.get(self.held.label, 0) > 0:
+            self.posture_drops[self.held.label] -= 1
+            x, y, h = self.at
+            self.held.position = (x + 0.3 * math.cos(h), y + 0.3 * math.sin(h), 0.05)
+            self.held = None
         self._look()
         return Outcome(True)
 
@@ -1189,6 +1197,23 @@ def test_an_object_dropped_on_the_way_is_found_again_and_placed() -> None:
     assert rec.dropped and rec.placed
     assert [f.reason for f in rec.failures] == ["dropped while carrying"]
     assert _calls(house, "grasp") == ["tomato_soup_can"] * 2
+    assert house.things[1].released_in == "tray"
+
+
+def test_an_object_that_slips_out_as_the_arm_moves_to_carry_is_not_carried() -> None:
+    # seed-107: a cup slipped out during the move to the carry posture, and the robot
+    # walked to the green box with empty fingers before it noticed
+    house = FakeHouse(_things()[:1])
+    house.posture_drops = {"tomato_soup_can": 1}
+    report = _task(house).run()
+    rec = _record(report, "tomato_soup_can")
+    assert rec.dropped and rec.placed
+    assert [f.reason for f in rec.failures] == ["dropped while moving to carry it"]
+    assert _calls(house, "grasp") == ["tomato_soup_can"] * 2
+    tray = PLACES["tray"].stand[:2]
+    walks = [a for a in _calls(house, "navigate_to") if isinstance(a, tuple)]
+    to_tray = [i for i, a in enumerate(walks) if math.dist(a[:2], tray) < 0.6]
+    assert len(to_tray) == 1  # one walk to the tray: with the object, after the second grasp
     assert house.things[1].released_in == "tray"
 
 
