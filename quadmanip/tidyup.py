@@ -408,13 +408,13 @@ class TidyRun:
             self._count_falls(base.get())
             if self.film is not None and p is not None:
                 self.film.on_step(now_sim - sim0, str(p.step))
-            np_ = nav_pose.get()
-            if np_ is not None and np_.status == "localized":
-                corr = np.asarray(np_.map_to_odom, dtype=float)
+            pose_now = nav_pose.get()
+            if pose_now is not None and pose_now.status == "localized":
+                corr = np.asarray(pose_now.map_to_odom, dtype=float)
                 corr0 = corr if corr0 is None else corr0
                 drift_xy = max(drift_xy, float(np.hypot(*(corr[:2] - corr0[:2]))))
                 drift_yaw = max(drift_yaw, abs(math.remainder(corr[2] - corr0[2], math.tau)))
-            err = _localisation_error(list(true_xy), np_)
+            err = _localisation_error(list(true_xy), pose_now)
             if err is not None:
                 loc_errors.append(err)
                 if p is not None and str(p.step).startswith("place"):

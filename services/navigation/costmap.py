@@ -137,7 +137,11 @@ class Costmap:
     @property
     def lethal(self) -> np.ndarray:
         """Cells the robot's body may not overlap: the occupied ones (+ unknown)."""
-        m = self.occupied
+        return self._lethal_with(self.objects)
+
+    def _lethal_with(self, objects: np.ndarray) -> np.ndarray:
+        """:attr:`lethal` with ``objects`` as the object layer."""
+        m = self.static_lethal | self.obstacles | objects
         if self.config.unknown_is_lethal:
             m = m | self.unknown
         return m
@@ -156,10 +160,7 @@ class Costmap:
             centres = geo.cell_center(rows.ravel(), cols.ravel()) - (xy[0], xy[1])
             near = (np.hypot(centres[:, 0], centres[:, 1]) <= radius).reshape(rows.shape)
             objects[r0 : r1 + 1, c0 : c1 + 1] &= ~near
-        m = self.static_lethal | self.obstacles | objects
-        if self.config.unknown_is_lethal:
-            m = m | self.unknown
-        return m
+        return self._lethal_with(objects)
 
     def update_obstacles(
         self,

@@ -719,7 +719,7 @@ class NavigationNode(Service):
         )
         if turned is None:
             return heading
-        if abs(wrap(turned - heading)) > 1e-9:
+        if turned != heading:  # (not turned: the very heading it was given)
             self.log.info(
                 "approach stance turned",
                 by_deg=round(math.degrees(wrap(turned - heading)), 1),

@@ -41,7 +41,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from quadmanip.common.rotations import quat_to_mat
+from quadmanip.common.rotations import quat_to_mat, rot_z
 from scipy.optimize import linear_sum_assignment
 
 __all__ = ["CameraView", "MemoryConfig", "ObjectMemory", "Observation", "Track"]
@@ -503,8 +503,9 @@ class ObjectMemory:
 
 def planar_pose_matrix(x: float, y: float, yaw: float) -> np.ndarray:
     """The 3x3 homogeneous matrix of a planar pose."""
-    c, s = math.cos(yaw), math.sin(yaw)
-    return np.array([[c, -s, x], [s, c, y], [0.0, 0.0, 1.0]])
+    m = rot_z(yaw)  # its last row and column are those of a planar pose already
+    m[:2, 2] = (x, y)
+    return m
 
 
 class MapAnchor:
