@@ -1261,6 +1261,22 @@ def test_a_place_whose_fingers_close_on_it_again_is_tried_again_on_the_spot() ->
     assert all(r.placed for r in report.objects)
 
 
+def test_an_object_stuck_twice_at_one_slot_is_released_at_the_next() -> None:
+    """Jammed in the fingers twice at one slot (seed-107: a cracker box, 8 times at one slot
+    of the tray, then the robot tripped over it): the robot stands in front of the place's
+    next slot and releases it there."""
+    house = FakeHouse(_things()[:2])
+    house.stuck = {"tomato_soup_can": 2}
+    report = _task(house).run()
+    rec = _record(report, "tomato_soup_can")
+    assert rec.placed and not rec.dropped
+    tray = [c[0] for c in _calls(house, "place") if math.dist(c[0][:2], (7.0, 3.6)) < 0.3]
+    assert len(tray) == 3
+    assert tray[0] == tray[1]  # once more at the same slot, then the next one
+    assert math.dist(tray[1][:2], tray[2][:2]) > 0.1
+    assert house.things[1].released_in == "tray"
+
+
 def test_a_grasp_refused_while_holding_sets_the_held_object_down_first() -> None:
     """A grasp refused as already_holding (here the place said done, the gripper kept the
     screwdriver and its message came after the check read "let go"): it is put down, taken
