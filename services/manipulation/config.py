@@ -23,12 +23,13 @@ __all__ = [
 class MotionConfig:
     """Arm rate limits (rad/s, rad/s^2), servo gains and trajectory sampling."""
 
-    v_max: tuple[float, float, float, float] = (2.0, 2.0, 2.5, 3.0)
-    a_max: tuple[float, float, float, float] = (6.0, 6.0, 8.0, 10.0)
+    v_max: tuple[float, float, float, float] = (3.0, 3.0, 4.0, 4.0)
+    a_max: tuple[float, float, float, float] = (9.0, 9.0, 14.0, 14.0)
     kp: tuple[float, float, float, float] = (80.0, 80.0, 40.0, 10.0)
     kd: tuple[float, float, float, float] = (3.0, 3.0, 1.5, 0.3)
     dt: float = 0.02
-    linear_speed: float = 0.15
+    linear_speed: float = 0.15  # m/s: straight tool moves with an object in the fingers
+    empty_linear_speed: float = 0.25  # m/s: ... with nothing in them
     angular_speed: float = 1.0
     # Posture moves with an object in the gripper run at this share of v_max (a_max
     # squared): a spoon pinched edge-on fell out of a full-speed move to ``carry``.

@@ -301,17 +301,18 @@ class Primitive:
 
     def line_to(self, goal: Any, speed: float | None = None) -> Script:
         """Straight-line tool move from the measured joints to ``goal`` (an ``ArmTarget``),
-        at ``speed`` m/s or the configured linear speed."""
+        at ``speed`` m/s or the configured linear speed (faster with empty fingers)."""
         obs = self._last_obs
         assert obs is not None
         m = self.cfg.motion
+        speed = speed or (m.linear_speed if self.monitor.holding else m.empty_linear_speed)
         traj = plan_cartesian_line(
             self.geom,
             obs.q_arm,
             goal,
             obs.t,
             self.limits,
-            linear_speed=speed or m.linear_speed,
+            linear_speed=speed,
             angular_speed=m.angular_speed,
             dt=m.dt,
         )
