@@ -49,10 +49,13 @@ class ApproachConfig:
     """Final approach parameters."""
 
     dt: float = 0.05  # s: control period (when ``command`` is not told otherwise)
-    gain_xy: float = 1.0  # 1/s (x lag 0.25 s: critically damped)
-    gain_yaw: float = 1.0  # 1/s
-    max_speed: float = 0.25  # m/s (norm of vx, vy)
-    max_wz: float = 0.6  # rad/s
+    # 1/s: the command is gain x the error left after ``lag`` (e - v lag), so with a
+    # first-order lag tau the loop is tau s^2 + (1 + K tau) s + K: overdamped up to K tau = 1
+    # (K = 2 at tau 0.25 s: zeta 1.06)
+    gain_xy: float = 2.0
+    gain_yaw: float = 2.0  # 1/s
+    max_speed: float = 0.35  # m/s (norm of vx, vy)
+    max_wz: float = 0.8  # rad/s
     min_speed: float = 0.03  # m/s per component: above the gait's ~0.02 m/s deadband
     min_wz: float = 0.08  # rad/s: above its turn-rate deadband
     max_accel: float = 0.6  # m/s^2
