@@ -896,6 +896,35 @@ def test_a_false_detection_gone_from_the_memory_after_a_look_is_given_up_at_once
         assert _record(report, t.label).placed
 
 
+def test_a_new_track_at_a_spot_probed_as_a_false_detection_is_not_acted_on() -> None:
+    # seed-109: a "sugar box", then a "cracker box", at one corner of the kitchen table:
+    # the second cost an approach and two probes
+    things = _things()[:2]
+    ghost = replace(things[0], track_id=90, label="clamp")
+    ghost.position = (things[0].position[0] + 1.2, things[0].position[1], 0.05)
+    house = FakeHouse(things, phantoms=[ghost])
+    house.far_only.add(90)
+    task = _task(house)
+    # once the clamp is given up, the same spot is reported as a padlock
+    real_give_up = task._give_up_now
+
+    def give_up_then_rename(step, reason):
+        out = real_give_up(step, reason)
+        again = replace(ghost, track_id=91, label="padlock")
+        again.position = (ghost.position[0] + 0.05, ghost.position[1], 0.05)
+        house.phantoms[91] = again
+        house.memory[91] = SeenObject(91, "padlock", again.position)
+        return out
+
+    task._give_up_now = give_up_then_rename
+    report = task.run()
+    assert _record(report, "clamp").given_up
+    assert not [r for r in report.objects if r.label == "padlock"]
+    assert ("padlock", 91) not in _calls(house, "estimate_grasp")
+    for t in things:
+        assert _record(report, t.label).placed
+
+
 def test_a_real_object_the_look_places_afresh_is_not_taken_for_a_false_detection() -> None:
     # a real object missed by the first probe (its track lay off) is in the memory after
     # the look from a step back: it is approached again and tidied
