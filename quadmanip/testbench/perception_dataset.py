@@ -56,7 +56,7 @@ MODES: dict[str, str] = {
     "probe_floor": rd.GRIPPER_CAMERA,
     "floor_search": rd.GRIPPER_CAMERA,
     "probe_table": rd.GRIPPER_CAMERA,
-    "table_search": rd.FRONT_CAMERA,
+    "table_search": rd.GRIPPER_CAMERA,
     "probe_horizontal": rd.FRONT_CAMERA,
     "probe_tall": rd.FRONT_CAMERA,
 }

@@ -165,6 +165,7 @@ class FakeHouse:
         # how the refusal reads: navigation refuses a goal in the map's obstacles at once,
         # and stops a walk whose goal the LiDAR finds too close to one on the way
         self.refusal = "rejected: the goal is in an obstacle or too close to one"
+        self.blocked_goals: list[tuple[float, float]] = []  # walk goals found too near something
         self.stuck_drawers: dict[str, int] = {}  # pulls of this drawer manipulation refuses
         self.arm_pull = 1.0  # m: longer pulls are refused as beyond the arm's reach
         self.unsettled = 0  # approaches that end near the goal but not within tolerance
@@ -369,6 +370,8 @@ class FakeHouse:
         self.calls.append(("navigate_to", place or pose))
         if (refused := self._request("navigate_to")) is not None:
             return refused
+        if pose is not None and any(math.dist(pose[:2], b) < 0.1 for b in self.blocked_goals):
+            return Outcome(False, "blocked: goal too close to an obstacle")
         for label, n in self.refuse_near.items():
             t = next(x for x in self.things.values() if x.label == label)
             seen = t.track_id in self.memory  # (a viewpoint walk before it was seen is fine)
@@ -1288,6 +1291,21 @@ def test_a_place_whose_fingers_close_on_it_again_is_tried_again_on_the_spot() ->
     assert len(tray) == 2
     assert house.things[1].released_in == "tray"
     assert all(r.placed for r in report.objects)
+
+
+def test_a_staging_pose_too_near_an_obstacle_is_moved_toward_the_stand() -> None:
+    """seed-111: a soup can lay 15 cm from the green box's staging pose; the four walks
+    there were refused, and the baseball was put down and given up."""
+    house = FakeHouse([_things()[3]])
+    sx, sy, syaw = PLACES["green_box"].stand
+    back = CFG.task.stage_back
+    house.blocked_goals = [(sx - back * math.cos(syaw), sy - back * math.sin(syaw))]
+    report = _task(house).run()
+    rec = _record(report, "baseball")
+    assert rec.placed and rec.failures == []
+    walks = [c for c in _calls(house, "navigate_to") if isinstance(c, tuple)]
+    half = (sx - back / 2 * math.cos(syaw), sy - back / 2 * math.sin(syaw))
+    assert any(math.dist(w[:2], half) < 1e-6 for w in walks)
 
 
 def test_an_object_stuck_twice_at_one_slot_is_released_at_the_next() -> None:
