@@ -166,6 +166,8 @@ class FakeHouse:
         # and stops a walk whose goal the LiDAR finds too close to one on the way
         self.refusal = "rejected: the goal is in an obstacle or too close to one"
         self.blocked_goals: list[tuple[float, float]] = []  # walk goals found too near something
+        # (heading, near): approaches at this heading to targets near there stop at once
+        self.blocked_headings: list[tuple[float, tuple[float, float]]] = []
         self.stuck_drawers: dict[str, int] = {}  # pulls of this drawer manipulation refuses
         self.arm_pull = 1.0  # m: longer pulls are refused as beyond the arm's reach
         self.unsettled = 0  # approaches that end near the goal but not within tolerance
@@ -402,6 +404,12 @@ class FakeHouse:
             return refused
         if self.by_furniture:
             self.t += 0.2
+            return Outcome(False, "blocked: an obstacle touches the footprint")
+        if heading is not None and any(
+            abs(heading - b) < 0.05 and math.dist(target[:2], at) < 0.5
+            for b, at in self.blocked_headings
+        ):
+            self.t += 0.2  # a leg by the stance at this heading: stopped at once
             return Outcome(False, "blocked: an obstacle touches the footprint")
         h = (
             heading
@@ -743,6 +751,23 @@ def test_report_and_progress_say_what_happened(tidy_run) -> None:
 
 
 # ------------------------------------------------------------------ retries and give-up
+
+
+def test_a_lateral_rejection_at_a_slanted_table_stance_steps_sideways() -> None:
+    """seed-111: a clamp at the kitchen table's corner, approached slanted (square met a
+    leg), lay 13.5 cm to the side; turning back square met the leg at once, three rounds,
+    and it was given up. Now the robot steps sideways at the slanted heading."""
+    bowl = _things()[2]
+    house = FakeHouse([bowl], grasp_failures={"bowl": ["lateral_out_of_range: y 0.13"]})
+    square = PLACES["living_table"].stand[2]
+    house.blocked_headings = [(square, bowl.position[:2])]  # a leg by the bowl's stance
+    report = _task(house).run()
+    rec = _record(report, "bowl")
+    assert rec.placed and rec.attempts == 1, rec.failures
+    i = [w for w, _ in house.calls].index("grasp")
+    after = [a for w, a in house.calls[i:] if w == "approach"][:2]
+    assert after[0][2] == pytest.approx(square)  # square first: the leg
+    assert abs(after[1][2] - square) > 0.3  # then sideways at the slanted heading
 
 
 def test_a_lateral_rejection_faces_the_grasp_point_again_and_probes_again() -> None:
