@@ -1742,7 +1742,9 @@ class TidyTask:
             # sideways at the heading it has (seed-111: a clamp at the kitchen table's
             # corner, 13.5 cm to the side, given up after three such rounds, 125 s)
             moved = self.robot.approach(grasp_xy, standoff, self._pose()[2])
-        if not moved.ok:
+        if not moved.ok and UNSETTLED not in moved.reason:
+            # (one that did not settle stands close: probe from there; seed-111's clamp,
+            # 3.6 cm off, went back to the slanted approach and its leg once more)
             return Step.APPROACH
         # a side probe cannot see the object from the grasping stance: start over
         return Step.APPROACH if probe.horizontal else Step.PROBE

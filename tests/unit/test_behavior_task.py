@@ -770,6 +770,34 @@ def test_a_lateral_rejection_at_a_slanted_table_stance_steps_sideways() -> None:
     assert abs(after[1][2] - square) > 0.3  # then sideways at the slanted heading
 
 
+def test_a_sideways_step_that_did_not_settle_probes_from_where_it_stands() -> None:
+    """seed-111: the step sideways ended 3.6 cm off ("did not settle"); going back to the
+    slanted approach met the leg once more. From there the probe and grasp go on."""
+    bowl = _things()[2]
+    house = FakeHouse([bowl], grasp_failures={"bowl": ["lateral_out_of_range: y 0.13"]})
+    house.blocked_headings = [(PLACES["living_table"].stand[2], bowl.position[:2])]
+    real_grasp = house.grasp
+
+    def grasp_then_unsettled(plan):
+        out = real_grasp(plan)
+        if not out.ok:
+            house.unsettled = 1  # the next approach that moves ends unsettled
+        return out
+
+    house.grasp = grasp_then_unsettled
+    report = _task(house).run()
+    rec = _record(report, "bowl")
+    assert rec.placed and rec.attempts == 1, rec.failures
+    i = [w for w, _ in house.calls].index("grasp")
+    assert [w for w, _ in house.calls[i : i + 5]] == [
+        "grasp",
+        "approach",  # square: the leg
+        "approach",  # sideways at the slanted heading: did not settle
+        "estimate_grasp",  # probed from there (the arm still in the probing posture)
+        "grasp",
+    ]
+
+
 def test_a_lateral_rejection_faces_the_grasp_point_again_and_probes_again() -> None:
     house = FakeHouse(
         _things()[:1], grasp_failures={"tomato_soup_can": ["lateral_out_of_range: y 0.08"]}
