@@ -25,7 +25,7 @@ import mujoco
 import numpy as np
 from quadmanip.common import robot_description as rd
 from quadmanip.common.rotations import mat_to_quat, quat_from_axis_angle, quat_mul, rot_z
-from quadmanip.sim.sensors import CameraConfig, RgbdRenderer
+from quadmanip.sim.sensors import CameraConfig, RgbdFrame, RgbdRenderer
 from quadmanip.sim.world.builder import World, build_world
 from quadmanip.sim.world.house import load_house
 from quadmanip.sim.world.objects import Catalogue, load_catalogue
@@ -124,6 +124,25 @@ def _box(mask: np.ndarray) -> tuple[int, int, int, int] | None:
     return int(u[0]), int(v[0]), int(u[-1]) + 1, int(v[-1]) + 1
 
 
+def render_object(
+    world: World,
+    data: mujoco.MjData,
+    camera: str,
+    name: str,
+    camera_config: CameraConfig | None = None,
+) -> tuple[RgbdFrame, np.ndarray]:
+    """``camera``'s RGB-D frame of ``data`` and the mask of object ``name``'s pixels in it
+    (those with a depth return), from a segmentation render of the same camera."""
+    renderer = RgbdRenderer(world.model, {camera: camera_config or CameraConfig()})
+    try:
+        frame = renderer.render(data, camera)
+        seg = renderer.render_segmentation(data, camera)
+    finally:
+        renderer.close()
+    geoms = np.flatnonzero(world.model.geom_bodyid == world.object_body_ids[name])
+    return frame, np.isin(seg, geoms) & (frame.depth > 0)
+
+
 def render_probe_view(
     name: str,
     where: str,
@@ -151,15 +170,8 @@ def render_probe_view(
     world = build_world(scn, house=house, catalogue=cat)
     data = world.initial_data()
     _stand(world, data, *_postures()[posture])
-    renderer = RgbdRenderer(world.model, {camera: camera_config or CameraConfig()})
-    try:
-        frame = renderer.render(data, camera)
-        seg = renderer.render_segmentation(data, camera)
-    finally:
-        renderer.close()
+    frame, mask = render_object(world, data, camera, name, camera_config)
     bid = world.object_body_ids[name]
-    obj_geoms = np.flatnonzero(world.model.geom_bodyid == bid)
-    mask = np.isin(seg, obj_geoms) & (frame.depth > 0)
     base = world.model.body(rd.BASE_BODY).id
     base_pos = data.xpos[base].copy()
     # the level body frame (the heading only), as the node uses (perception.frames

@@ -37,11 +37,10 @@ def table_search_recall(spots: int, seed: int = 0) -> dict[str, Any]:
     from quadmanip.services.perception.config import PerceptionConfig
     from quadmanip.services.perception.detector import Detector, box_iou
     from quadmanip.sim.scenarios import Placement, Scenario
-    from quadmanip.sim.sensors import CameraConfig, RgbdRenderer
     from quadmanip.sim.world.builder import build_world
     from quadmanip.sim.world.house import load_house
     from quadmanip.sim.world.objects import load_catalogue
-    from quadmanip.testbench.probe_views import _postures, _stand
+    from quadmanip.testbench.probe_views import _box, _postures, _stand, render_object
 
     cat, house = load_catalogue(), load_house()
     places = load_places(CONFIG_DIR / "maps" / "house.places.toml")
@@ -83,20 +82,12 @@ def table_search_recall(spots: int, seed: int = 0) -> dict[str, Any]:
             if look_down is None:
                 axis = -data.cam_xmat[world.model.camera(cam).id].reshape(3, 3)[:, 2]
                 look_down = math.degrees(math.asin(-axis[2]))
-            renderer = RgbdRenderer(world.model, {cam: CameraConfig()})
-            try:
-                frame = renderer.render(data, cam)
-                seg = renderer.render_segmentation(data, cam)
-            finally:
-                renderer.close()
-            bid = world.object_body_ids[name]
-            mask = np.isin(seg, np.flatnonzero(world.model.geom_bodyid == bid)) & (frame.depth > 0)
+            frame, mask = render_object(world, data, cam, name)
             row["views"] += 1
             if mask.sum() < 20:
                 continue
             row["in_image"] += 1
-            v, u = np.nonzero(mask)
-            truth = (u.min(), v.min(), u.max() + 1, v.max() + 1)
+            truth = _box(mask)
             row["detected"] += any(
                 d.label == name
                 and d.score >= pcfg.detector.report_threshold
