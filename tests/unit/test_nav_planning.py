@@ -315,6 +315,29 @@ def test_approach_controller_reaches_targets_precisely():
     assert max(times) < 20.0
 
 
+def test_an_approach_that_turns_as_it_walks_keeps_to_its_straight_line():
+    # the turned stances of free_approach_heading are checked along the straight way to
+    # them; turning 2.5 rad on the way, the approach used to bow 6.6 cm off it (its
+    # commands acted in a base frame turned by wz x lag), into a sofa's corner
+    cfg = ApproachConfig()
+    start, goal = (0.8, 1.2, 0.0), (1.2, 2.4, 2.55)
+    a, b = np.array(start[:2]), np.array(goal[:2])
+    u = (b - a) / np.linalg.norm(b - a)
+    for turn in (1.0, -1.0):
+        g = (goal[0], goal[1], turn * goal[2])
+        base = LeggedBase(start, noise=0.0, deadband=0.02, deadband_wz=0.05)
+        ctl = ApproachController(cfg)
+        off, t, done = 0.0, 0.0, False
+        while t < 20.0 and not done:
+            vx, vy, wz, done = ctl.command(base.pose, g, 0.02, 0.035)
+            base.step((vx, vy, wz))
+            d = np.array(base.pose[:2]) - a
+            off = max(off, abs(float(d[0] * u[1] - d[1] * u[0])))
+            t += 0.05
+        assert done
+        assert off < 0.035, f"{off * 100:.1f} cm off the straight way"
+
+
 class StoppingBase(LeggedBase):
     """A legged base that stands after 0.3 s of zero commands: its creep stops and, as the
     last feet land and the balance centres the trunk over them, it shifts up to 8 mm.
@@ -620,6 +643,14 @@ def test_an_approach_stance_against_furniture_is_turned_about_the_target():
 
     assert free_approach_heading(clear_of_it, start, target, standoff, 0.0, turns, keep,
                                  wide) == pytest.approx(0.7)  # fmt: skip
+
+    # no turn clear by the wide margin, the straight stance not even by the guard's: the
+    # first turn free by the guard's margin (grazing, rather than meeting the post)
+    def narrow_only(p, m) -> bool:  # the straight stance is (1.64, 2.0)
+        return m <= keep and math.hypot(p[0] - 1.64, p[1] - 2.0) > 0.05
+
+    assert free_approach_heading(narrow_only, start, target, standoff, 0.0, turns, keep,
+                                 wide) == pytest.approx(0.35)  # fmt: skip
     # nowhere free: None (the caller keeps its heading and the guard)
     never, always = (lambda p, m: False), (lambda p, m: True)
     assert free_approach_heading(never, start, target, standoff, 0.0, turns, keep, wide) is None
