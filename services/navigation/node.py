@@ -316,6 +316,9 @@ class NavigationNode(Service):
         if outcome == "blocked":  # where, and what was nearest: the log alone should tell
             if pose is not None and job.kind == "navigate":  # (a map pose; an approach's: odom)
                 extra["map_pose"] = f"[{pose[0]:.2f}, {pose[1]:.2f}, {pose[2]:.2f}]"
+                if job.target is not None:
+                    t = job.target
+                    extra["map_goal"] = f"[{t[0]:.2f}, {t[1]:.2f}, {t[2]:.2f}]"
             scan = self.scan_cache.get()
             near = None if scan is None else nearest_return(self._scan_points(scan).points)
             if near is not None:
@@ -687,6 +690,9 @@ class NavigationNode(Service):
             if poses is not None:
                 self.pub_path.publish(m.Path(stamp=now, poses=poses))
         if st.state == "active":
+            if st.reason.startswith("recovering"):  # once per recovery: the log should tell
+                self.log.info("navigate recovery", why=st.reason,
+                              map_pose=f"[{pose[0]:.2f}, {pose[1]:.2f}, {pose[2]:.2f}]")  # fmt: skip
             self._send(job, st.vx, st.vy, st.wz)
             if math.isfinite(st.distance_left):
                 job.progress = 1.0 - st.distance_left / job.total

@@ -45,6 +45,10 @@ class NodeConfig:
     # the same way (a bare patch of floor or table top: nothing stands out of it)
     flat_ratio: float = 0.5
     view_frames: int = 5  # fresh frames per camera a grasp request looks at for its target
+    # a grasp request for a class takes its box from every candidate; a reported box of
+    # another class over it, scoring this much more, names the object instead (the close
+    # view decides; frames.close_view_class)
+    relabel_margin: float = 0.2
     # a folder: each rejected grasp estimate's inputs (depth, colour, box, K, camera pose,
     # label, surface) are written there as .npz (``quadmanip perception replay`` reads
     # them back), so a rejection seen live can be studied offline; "" writes nothing

@@ -46,6 +46,7 @@ from quadmanip.services.perception.detector import Detection, Detector, reported
 from quadmanip.services.perception.frames import (
     Located,
     camera_in_odom,
+    close_view_class,
     frame_problem,
     implausible_grasp,
     level_frame,
@@ -497,6 +498,16 @@ class PerceptionNode(Service):
         if not choices:
             raise ActionFailed("; ".join(reasons) or "not in view")
         _, p, det, loc = max(choices, key=lambda c: c[0])
+        if label:
+            named = close_view_class(
+                det, p.reported, cfg.detector.overlap_iou, cfg.node.relabel_margin
+            )
+            if named is not det:
+                self.log.info("the close view names it otherwise", asked=label,
+                              asked_score=round(det.score, 2), named=named.label,
+                              named_score=round(named.score, 2))  # fmt: skip
+                det = named
+                loc = next((x for x in p.located if x.detection is named), None)
         reach = self._reach(goal, p.img.camera)
         if loc is not None and loc.distance > reach:
             raise ActionFailed(f"too far: {det.label} {loc.distance:.2f} m away (reach {reach} m)")

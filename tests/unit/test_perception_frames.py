@@ -10,6 +10,7 @@ from quadmanip.common.rotations import mat_to_quat, quat_from_axis_angle, quat_f
 from quadmanip.services.perception.detector import Detection
 from quadmanip.services.perception.frames import (
     Located,
+    close_view_class,
     frame_problem,
     level_frame,
     locate_detection,
@@ -191,3 +192,20 @@ def test_an_extent_far_larger_than_the_class_is_not_plausible() -> None:
     cube = cat.objects["rubiks_cube"].size
     assert plausible_extent(np.array([0.081, 0.015, 0.012]), cube)  # the largest seen (1.42 x)
     assert not plausible_extent(np.array([0.30, 0.05, 0.05]), cube)
+
+
+def test_the_close_view_names_a_box_another_class_scores_clearly_higher() -> None:
+    # seed-112: a tennis ball filed as a "lego" from afar; from close by a weak lego
+    # candidate lay under a 0.7 tennis ball box, and the lego request took it
+    weak = Detection("lego", 0.15, (142, 50, 177, 87))
+    ball = Detection("tennis_ball", 0.70, (143, 51, 178, 86))
+    can = Detection("coffee_can", 0.87, (251, 64, 318, 129))  # beside it: not the object
+    assert close_view_class(weak, [ball, can], 0.6, 0.2) is ball
+    # the requested class itself reported there, or a rival not clearly better: unchanged
+    sure = Detection("lego", 0.6, weak.box)
+    assert close_view_class(sure, [sure, can], 0.6, 0.2) is sure
+    near_tie = Detection("tennis_ball", 0.3, ball.box)
+    assert close_view_class(weak, [near_tie], 0.6, 0.2) is weak
+    # a rival box over only part of it (another object beside): unchanged
+    beside = Detection("tennis_ball", 0.9, (160, 50, 195, 87))
+    assert close_view_class(weak, [beside], 0.6, 0.2) is weak
