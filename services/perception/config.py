@@ -49,6 +49,9 @@ class NodeConfig:
     # another class over it, scoring this much more, names the object instead (the close
     # view decides; frames.close_view_class)
     relabel_margin: float = 0.2
+    # px: a box this near the image's border may show a cut-off object; the memory takes
+    # it as a partial observation (object_memory.Observation.partial)
+    edge_px: float = 4.0
     # a folder: each rejected grasp estimate's inputs (depth, colour, box, K, camera pose,
     # label, surface) are written there as .npz (``quadmanip perception replay`` reads
     # them back), so a rejection seen live can be studied offline; "" writes nothing

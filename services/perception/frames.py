@@ -25,6 +25,7 @@ __all__ = [
     "Located",
     "camera_in_odom",
     "close_view_class",
+    "cut_off",
     "frame_problem",
     "level_frame",
     "locate_detection",
@@ -298,3 +299,10 @@ def close_view_class(
         and box_iou(d.box, chosen.box) > overlap_iou
     ]
     return max(rivals, key=lambda d: d.score, default=chosen)
+
+
+def cut_off(box: tuple[float, float, float, float], width: int, height: int, edge: float) -> bool:
+    """Whether ``box`` (x0, y0, x1, y1, end exclusive) reaches within ``edge`` pixels of
+    the border of a ``width`` x ``height`` image: the object may be cut off there."""
+    x0, y0, x1, y1 = box
+    return x0 <= edge or y0 <= edge or x1 >= width - edge or y1 >= height - edge

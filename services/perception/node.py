@@ -47,6 +47,7 @@ from quadmanip.services.perception.frames import (
     Located,
     camera_in_odom,
     close_view_class,
+    cut_off,
     frame_problem,
     implausible_grasp,
     level_frame,
@@ -275,6 +276,7 @@ class PerceptionNode(Service):
                 )
             ]
             self.counters["implausible_extent"] += len(shown_loc) - len(sized)
+            h, w = img.depth.shape
             obs = [
                 Observation(
                     class_name=x.detection.label,
@@ -282,6 +284,7 @@ class PerceptionNode(Service):
                     centroid=x.centroid_odom,
                     extent=x.extent,
                     camera=cam,
+                    partial=cut_off(x.detection.box, w, h, nc.edge_px),
                 )
                 for x in sized
             ]

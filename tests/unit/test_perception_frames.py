@@ -11,6 +11,7 @@ from quadmanip.services.perception.detector import Detection
 from quadmanip.services.perception.frames import (
     Located,
     close_view_class,
+    cut_off,
     frame_problem,
     level_frame,
     locate_detection,
@@ -209,3 +210,11 @@ def test_the_close_view_names_a_box_another_class_scores_clearly_higher() -> Non
     # a rival box over only part of it (another object beside): unchanged
     beside = Detection("tennis_ball", 0.9, (160, 50, 195, 87))
     assert close_view_class(weak, [beside], 0.6, 0.2) is weak
+
+
+def test_a_box_at_the_image_edge_is_cut_off() -> None:
+    assert cut_off((300, 137, 319, 200), 320, 240, 4.0)  # a table leg at the right edge
+    assert cut_off((0, 0, 17, 42), 320, 240, 4.0)
+    assert cut_off((100, 100, 140, 238), 320, 240, 4.0)  # at the bottom
+    assert not cut_off((142, 50, 177, 87), 320, 240, 4.0)
+    assert not cut_off((300, 90, 313, 102), 320, 240, 4.0)  # 7 px in: whole

@@ -363,3 +363,29 @@ def test_tracks_stay_where_they_lie_in_the_map_while_the_odometry_drifts() -> No
     assert ids == [tid] and mem.get(tid).misses == 0
     with pytest.raises(ValueError, match="3x3"):
         mem.move_frame(np.eye(2))
+
+
+def test_a_cut_off_view_keeps_a_track_but_starts_and_moves_none() -> None:
+    # seed-113 and others: a table's leg at the edge of a walking view read as a "sugar
+    # box"; from the full views of other frames nothing was ever there
+    mem = ObjectMemory()
+    p = np.array([1.5, 0.3, 0.05])
+    leg = Observation("sugar_box", 0.6, np.array([2.0, -0.5, 0.2]), CUP, "front_camera", True)
+    for k in range(6):
+        assert mem.update([leg], view(depth=depth_of(4.0)), 0.1 * k) == []
+    assert mem.tracks(confirmed_only=False) == []
+    # a real cup seen whole, then only cut off at the edge for longer than max_misses
+    (tid,) = confirmed(mem, p)
+    before = mem.get(tid).centroid.copy()
+    edge = Observation("cup", 0.9, p + [0.04, 0.03, 0.0], CUP * 0.5, "front_camera", True)
+    for k in range(mem.config.max_misses + 2):
+        assert mem.update([edge], view(depth=depth_of(4.0)), 1.0 + 0.1 * k) == [tid]
+    t = mem.get(tid)
+    assert t is not None and t.misses == 0  # kept alive ...
+    assert np.allclose(t.centroid, before) and np.allclose(t.extent, CUP)  # ... not moved
+    # its class votes count partial_vote x: three whole "cup" views outweigh five cut-off
+    # "bowl" ones (0.9 x 3 > 0.25 x 0.9 x 5)
+    bowl = Observation("bowl", 0.9, p, CUP, "front_camera", True)
+    for k in range(5):
+        mem.update([bowl], view(depth=depth_of(4.0)), 2.0 + 0.1 * k)
+    assert mem.get(tid).class_name == "cup"
