@@ -28,6 +28,12 @@ odom frame. :class:`ObjectMemory` fuses them over time and cameras into tracks:
   (Two different objects' centroids lie farther apart than ``class_radius``: their
   half-sizes separate them.)
 
+- Cut-off views: a box at the image's edge (``Observation.partial``, set by the node)
+  may show part of an object, or of furniture (table legs at the edge of walking views
+  were filed as "sugar boxes" in most tidy-up trials). Such an observation keeps the
+  track it matches alive and votes at ``partial_vote``, but starts no track and moves
+  none: objects are placed from whole views.
+
 ``confidence = mean score x (1 - exp(-observations / evidence_scale)) x miss_decay^misses``.
 
 Call :meth:`ObjectMemory.update` for every processed frame, also when nothing was detected
