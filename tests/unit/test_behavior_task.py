@@ -216,6 +216,8 @@ class FakeHouse:
         # approach targets (x, y) it holds blocked: the robot stops ``block_short`` m short
         # of such a stance, its approach stalled (something at its feet, paper-3)
         self.blocked_stance: Callable[[tuple[float, float]], bool] | None = None
+        # approach targets whose stance a piece of furniture touches: stopped at once
+        self.touching: Callable[[tuple[float, float]], bool] | None = None
         self.block_short = 0.06
         self.place_reach = 0.6  # m: a release point farther off is refused too_far
         # label -> reasons its next places fail with (not rejected: the arm was stopped)
@@ -407,6 +409,9 @@ class FakeHouse:
         if (refused := self._request("approach")) is not None:
             return refused
         if self.by_furniture:
+            self.t += 0.2
+            return Outcome(False, "blocked: an obstacle touches the footprint")
+        if self.touching is not None and self.touching(tuple(target[:2])):
             self.t += 0.2
             return Outcome(False, "blocked: an obstacle touches the footprint")
         if heading is not None and any(
@@ -1563,6 +1568,32 @@ def test_a_blocked_stance_at_a_place_backs_off_to_the_next_slot() -> None:
     places = _calls(house, "place")
     assert side(places[-1][0]) == pytest.approx(slots[0])  # released at the free stance
     assert len(places) <= 4  # one for the first; the second given up on its slot at once
+
+
+def test_a_place_stance_that_meets_furniture_takes_the_next_slot_at_once() -> None:
+    # seed-114 (2026-12-05): the tray's third slot (its far row) stood a leg of the
+    # deposit table against the trunk; the task walked to the same stance again, stepped
+    # in, refused, and put the cracker box down after four attempts
+    things = [
+        Thing("tomato_soup_can", 1, (2.5, 1.4, 0.05)),
+        Thing("coffee_can", 2, (3.2, 1.9, 0.07)),
+    ]
+    house = FakeHouse(things)
+    tray = PLACES["tray"]
+    left = (-math.sin(tray.stand[2]), math.cos(tray.stand[2]))
+
+    def side(p: Sequence[float]) -> float:
+        return (p[0] - tray.target[0]) * left[0] + (p[1] - tray.target[1]) * left[1]
+
+    slots = [sd for sd, _ in CFG.deposits["tray"].slots]
+    house.touching = lambda xy: abs(side(xy) - slots[1]) < 0.02
+    report = _task(house).run()
+    assert report.outcome == "done", report.reason
+    assert {t.released_in for t in house.things.values()} == {"tray"}
+    second = [r for r in report.objects if r.placed][1]
+    assert second.failures == []  # no attempt lost to it
+    places = _calls(house, "place")
+    assert len(places) == 2 and side(places[1][0]) == pytest.approx(slots[2])
 
 
 def test_a_failed_put_down_does_not_unplace_the_object_placed_before() -> None:
