@@ -56,6 +56,11 @@ class NavigatorConfig:
     turn_angle: float = math.radians(60)  # per recovery, alternating sides
     turn_rate: float = 0.6  # rad/s
     give_up_after: float = 25.0  # s from the first recovery: then ``blocked``
+    # A walk that starts beside furniture (after a grasp or a place at a table) met it
+    # with its first turn, and the recovery's wait and turn cost ~3.5 s (four times in
+    # seed-114, 2026-12-05): blocked within this long of the start, before any recovery,
+    # it only steps back (once), and then follows its path.
+    start_window: float = 2.0
     path_check_ahead: float = 2.0  # m of path ahead checked for new obstacles
     escape_speed: float = 0.12  # m/s: stepping out of the inscribed zone, away from obstacles
     escape_time: float = 4.0  # s at most per escape
@@ -108,6 +113,7 @@ class _Goal:
     recovery_origin: Pose2 | None = None
     last_reason: str = ""
     escape_until: float = -math.inf
+    stepped_back: bool = False  # the start's step back from what the first move met
 
 
 class Navigator:
@@ -223,6 +229,21 @@ class Navigator:
         self.follower.reset()
         return NavStep(0.0, 0.0, 0.0, "active", f"recovering ({g.recoveries}): {g.last_reason}")
 
+    def _step_back(self, g: _Goal, now: float, pose: Pose2, costmap: Costmap) -> NavStep | None:
+        """``backup_distance`` straight back, when free (``start_window``); None if not."""
+        cfg = self.config
+        back = (
+            pose[0] - cfg.backup_distance * math.cos(pose[2]),
+            pose[1] - cfg.backup_distance * math.sin(pose[2]),
+            pose[2],
+        )
+        if not costmap.footprint_free(back):
+            return None
+        g.recovery = [("backup", now + cfg.backup_distance / cfg.backup_speed, 0.0)]
+        g.recovery_origin = pose
+        self.follower.reset()
+        return NavStep(0.0, 0.0, 0.0, "active", "stepping back: the first move meets an obstacle")
+
     def step(
         self, now: float, pose: Pose2, costmap: Costmap, standing: bool | None = None
     ) -> NavStep:
@@ -288,6 +309,12 @@ class Navigator:
             return self._end("reached", "reached", 0.0)
         if cmd.blocked:
             g.last_reason = "an obstacle in the way"
+            early = now - g.t_start < cfg.start_window and g.recoveries == 0
+            if early and not g.stepped_back:
+                g.stepped_back = True
+                step = self._step_back(g, now, pose, costmap)
+                if step is not None:
+                    return step
             return self._start_recovery(g, now, pose, costmap)
         # ---- progress watchdog (not while the follower settles within the tolerances:
         # a bounded wait to stand and nudges)

@@ -135,6 +135,25 @@ def test_a_robot_standing_too_close_to_a_wall_steps_out_and_goes(plan):
     assert touching == 0
 
 
+def test_a_walk_whose_first_turn_meets_the_wall_steps_back_without_a_recovery(plan, monkeypatch):
+    # 0.32 m from the south wall, facing it (after a place at a table, seed-114): outside
+    # the inscribed zone, but the first turn sweeps the trunk's corners into the wall.
+    # The recovery (wait, back up, turn) cost 10.05 s to the goal; a step back 8.0 s.
+    recoveries = []
+    real = Navigator._start_recovery
+
+    def counted(self, g, now, pose, costmap):
+        recoveries.append(g.last_reason)
+        return real(self, g, now, pose, costmap)
+
+    monkeypatch.setattr(Navigator, "_start_recovery", counted)
+    start = (2.0, 0.32, -math.pi / 2)
+    state, reason, _, t, touching = _run(plan, plan.mask, (2.5, 1.8, 0.0), start=start)
+    assert state == "reached", reason
+    assert touching == 0 and recoveries == []
+    assert t < 9.0
+
+
 def _pillar_room() -> tuple[Costmap, FloorPlan]:
     """A 6 x 4 m room with a 1 m pillar in its middle: two equal ways past it."""
     geo = GridGeometry.covering((0.0, 0.0), (6.0, 4.0), 0.05)
