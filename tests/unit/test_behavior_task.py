@@ -1543,21 +1543,31 @@ def test_four_food_objects_go_into_the_tray_each_on_a_spot_of_its_own() -> None:
     assert np.all(inner <= np.array([0.192, 0.142]))
 
 
-def test_a_blocked_stance_at_a_place_backs_off_to_the_next_slot() -> None:
-    # paper-3 (2026-12-05): the stance for the black box's second slot stopped 5 cm short
-    # at every step in; the place was refused too_far eight times (130 s)
-    things = [
+def _two_cans() -> list[Thing]:
+    """Two food objects on the floor: both go into the tray, to its first two slots."""
+    return [
         Thing("tomato_soup_can", 1, (2.5, 1.4, 0.05)),
         Thing("coffee_can", 2, (3.2, 1.9, 0.07)),
     ]
-    house = FakeHouse(things)
+
+
+def _tray_sides() -> tuple[Callable[[Sequence[float]], float], list[float]]:
+    """(how far a point lies left of the tray's centre line, seen from its stand; the
+    slots' left offsets)."""
     tray = PLACES["tray"]
     left = (-math.sin(tray.stand[2]), math.cos(tray.stand[2]))
 
     def side(p: Sequence[float]) -> float:
         return (p[0] - tray.target[0]) * left[0] + (p[1] - tray.target[1]) * left[1]
 
-    slots = [sd for sd, _ in CFG.deposits["tray"].slots]
+    return side, [sd for sd, _ in CFG.deposits["tray"].slots]
+
+
+def test_a_blocked_stance_at_a_place_backs_off_to_the_next_slot() -> None:
+    # paper-3 (2026-12-05): the stance for the black box's second slot stopped 5 cm short
+    # at every step in; the place was refused too_far eight times (130 s)
+    house = FakeHouse(_two_cans())
+    side, slots = _tray_sides()
     house.blocked_stance = lambda xy: abs(side(xy) - slots[1]) < 0.02
     house.place_reach = CFG.deposits["tray"].reach + 0.03  # 6 cm short is out of reach
     report = _task(house).run()
@@ -1574,18 +1584,8 @@ def test_a_place_stance_that_meets_furniture_takes_the_next_slot_at_once() -> No
     # seed-114 (2026-12-05): the tray's third slot (its far row) stood a leg of the
     # deposit table against the trunk; the task walked to the same stance again, stepped
     # in, refused, and put the cracker box down after four attempts
-    things = [
-        Thing("tomato_soup_can", 1, (2.5, 1.4, 0.05)),
-        Thing("coffee_can", 2, (3.2, 1.9, 0.07)),
-    ]
-    house = FakeHouse(things)
-    tray = PLACES["tray"]
-    left = (-math.sin(tray.stand[2]), math.cos(tray.stand[2]))
-
-    def side(p: Sequence[float]) -> float:
-        return (p[0] - tray.target[0]) * left[0] + (p[1] - tray.target[1]) * left[1]
-
-    slots = [sd for sd, _ in CFG.deposits["tray"].slots]
+    house = FakeHouse(_two_cans())
+    side, slots = _tray_sides()
     house.touching = lambda xy: abs(side(xy) - slots[1]) < 0.02
     report = _task(house).run()
     assert report.outcome == "done", report.reason
