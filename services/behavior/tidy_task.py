@@ -1636,10 +1636,9 @@ class TidyTask:
             if r is not rec
             and r.label == name
             and not r.finished
-            and not r.grasped
             and _dist(r.position, plan.position_map) < self.cfg.same_object_radius
         ]
-        if twins and not merge:
+        if twins and (not merge or any(r.grasped for r in twins)):
             return False  # an object another record stands for
         with self._lock:
             for r in twins:
