@@ -690,7 +690,7 @@ class NavigationNode(Service):
             if poses is not None:
                 self.pub_path.publish(m.Path(stamp=now, poses=poses))
         if st.state == "active":
-            if st.reason.startswith("recovering"):  # once per recovery: the log should tell
+            if st.reason.startswith(("recovering", "stepping back")):  # once each: logged
                 self.log.info("navigate recovery", why=st.reason,
                               map_pose=f"[{pose[0]:.2f}, {pose[1]:.2f}, {pose[2]:.2f}]")  # fmt: skip
             self._send(job, st.vx, st.vy, st.wz)
