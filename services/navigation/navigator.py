@@ -211,11 +211,7 @@ class Navigator:
         g.recoveries += 1
         sign = 1.0 if g.recoveries % 2 else -1.0
         steps = [("wait", now + cfg.recovery_wait, 0.0)]
-        back = (
-            pose[0] - cfg.backup_distance * math.cos(pose[2]),
-            pose[1] - cfg.backup_distance * math.sin(pose[2]),
-            pose[2],
-        )
+        back = self._back_pose(pose)
         t = now + cfg.recovery_wait
         if costmap.footprint_free(back):
             t += cfg.backup_distance / cfg.backup_speed
@@ -229,14 +225,15 @@ class Navigator:
         self.follower.reset()
         return NavStep(0.0, 0.0, 0.0, "active", f"recovering ({g.recoveries}): {g.last_reason}")
 
+    def _back_pose(self, pose: Pose2) -> Pose2:
+        """``pose`` moved ``backup_distance`` straight back."""
+        d = self.config.backup_distance
+        return (pose[0] - d * math.cos(pose[2]), pose[1] - d * math.sin(pose[2]), pose[2])
+
     def _step_back(self, g: _Goal, now: float, pose: Pose2, costmap: Costmap) -> NavStep | None:
         """``backup_distance`` straight back, when free (``start_window``); None if not."""
         cfg = self.config
-        back = (
-            pose[0] - cfg.backup_distance * math.cos(pose[2]),
-            pose[1] - cfg.backup_distance * math.sin(pose[2]),
-            pose[2],
-        )
+        back = self._back_pose(pose)
         if not costmap.footprint_free(back):
             return None
         g.recovery = [("backup", now + cfg.backup_distance / cfg.backup_speed, 0.0)]
