@@ -114,6 +114,7 @@ class _Goal:
     last_reason: str = ""
     escape_until: float = -math.inf
     stepped_back: bool = False  # the start's step back from what the first move met
+    modes: dict[str, float] = field(default_factory=dict)  # s of robot time per step mode
 
 
 class Navigator:
@@ -133,6 +134,9 @@ class Navigator:
         self.goal: _Goal | None = None
         self.plan_ms: list[float] = []
         self._t_last = -math.inf
+        # where the last goal's time went (s per step mode: rotate, track, final, settle,
+        # backup, turn, wait, escape), for the log line that ends it
+        self.last_modes: dict[str, float] = {}
 
     # ------------------------------------------------------------------ goals
     def start(
@@ -148,6 +152,7 @@ class Navigator:
     ) -> str:
         """Check and accept a goal; "" when accepted, else the reason (``no_path: ...``
         when even the static map has no way there)."""
+        self.last_modes = {}
         if not all(math.isfinite(v) for v in goal):
             return "rejected: the goal is not finite"
         ref = static_costmap or costmap
@@ -167,6 +172,8 @@ class Navigator:
 
     def cancel(self) -> None:
         """Forget the goal (the node sends the stop)."""
+        if self.goal is not None:
+            self.last_modes = self.goal.modes
         self.goal = None
 
     @property
@@ -199,6 +206,8 @@ class Navigator:
         return bool(np.any(costmap.cost_at(ahead) == LETHAL))
 
     def _end(self, state: str, reason: str, distance: float = math.inf) -> NavStep:
+        if self.goal is not None:
+            self.last_modes = self.goal.modes
         self.goal = None
         return NavStep(0.0, 0.0, 0.0, state, reason, distance)
 
@@ -251,6 +260,20 @@ class Navigator:
         g = self.goal
         if g is None:
             return NavStep(0.0, 0.0, 0.0, "idle")
+        step = self._step(g, now, pose, costmap, standing, dt)
+        if dt is not None:
+            g.modes[step.mode] = g.modes.get(step.mode, 0.0) + dt
+        return step
+
+    def _step(
+        self,
+        g: _Goal,
+        now: float,
+        pose: Pose2,
+        costmap: Costmap,
+        standing: bool | None,
+        dt: float | None,
+    ) -> NavStep:
         cfg = self.config
         if g.t_first_recovery is not None and now - g.t_first_recovery > cfg.give_up_after:
             return self._end("blocked", f"blocked: {g.last_reason} for {cfg.give_up_after:.0f} s")

@@ -313,6 +313,10 @@ class NavigationNode(Service):
         extra: dict[str, object] = {}
         if job.anchor is not None:
             extra = {"anchor_matches": job.anchor.matches, "anchor_refused": job.anchor.refused}
+        if job.kind == "navigate" and self.navigator.last_modes:
+            # where the walk's time went (s of robot time per step mode)
+            modes = self.navigator.last_modes.items()
+            extra["modes"] = " ".join(f"{k} {v:.1f}" for k, v in modes)
         if outcome == "blocked":  # where, and what was nearest: the log alone should tell
             if pose is not None and job.kind == "navigate":  # (a map pose; an approach's: odom)
                 extra["map_pose"] = f"[{pose[0]:.2f}, {pose[1]:.2f}, {pose[2]:.2f}]"
