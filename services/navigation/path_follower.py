@@ -58,6 +58,10 @@ class FollowerConfig:
     rotate_threshold: float = math.radians(40)  # turn in place above this heading error
     rotate_exit: float = math.radians(20)  # ... until it is below this
     rotate_gain: float = 3.0  # 1/s
+    # m/s toward the path while turning in place, where the clearance is above
+    # ``slow_clearance`` (a walk's first turn: 1.4-2.9 s of standing still per walk on the
+    # navigation bench); 0: turn on the spot
+    rotate_walk_speed: float = 0.3
     regulation_radius: float = 0.9  # m: turn radii below this scale the speed down
     slow_clearance: float = 0.35  # m: clearances below this scale the speed down
     stop_clearance: float = 0.1  # m: ... to min_speed at this clearance
@@ -74,6 +78,13 @@ class FollowerConfig:
     response_lag: float = 0.25  # s: the gait's velocity time constant (stopping distance)
     collision_horizon: float = 0.5  # s
     search_window: float = 1.0  # m: how far along the path the progress search looks
+    # The body turns to the goal's yaw as it walks the path's last stretch, stepping along
+    # the path holonomically (vx, vy toward the look-ahead point): turned only at the
+    # goal, the last turn (often 2-3 rad: a stance faces its object, not the way it came)
+    # took 2-3 s of the final alignment per walk (kinematic model, 16 goals). It starts
+    # ``turn_ahead`` m before the end, or earlier by the distance walked while turning at
+    # ``max_wz``. 0: off.
+    turn_ahead: float = 0.8
     # Told whether the robot stands: stopped within the tolerances, it waits (at most
     # ``stop_wait``) until it stands, then nudges itself onto ``aim`` of them (at most the
     # nudges' patience): what the robot stands at is what the task gets, and the
@@ -154,6 +165,7 @@ class PathFollower:
         self._last = (0.0, 0.0, 0.0)
         self._vel = np.zeros(3)  # the body velocity the commands produce, first-order model
         self._rotating = False
+        self._ahead = False
         self._final = False
         self._waited = 0.0  # s stopped within the tolerances, waiting to stand
         self._settling = False  # within the tolerances, standing still or nudged
@@ -166,6 +178,7 @@ class PathFollower:
         self._idx = int(np.argmin(np.hypot(*(path - pose[:2]).T)))
         self._final = False
         self._rotating = False
+        self._ahead = False  # turning to the goal's yaw on the way (``turn_ahead``)
 
     def command(
         self,
@@ -215,7 +228,7 @@ class PathFollower:
                 self._emit((0.0, 0.0, 0.0), dt)
                 return FollowCommand(0.0, 0.0, 0.0, True, to_goal, False, mode)
         else:
-            vx, vy, wz, mode = self._track(pose, path, clearance, left)
+            vx, vy, wz, mode = self._track(pose, path, clearance, left, goal_yaw)
         kappa = wz / vx if mode == "track" and vx > 1e-6 else None
         vx, vy, wz = self._limit_accel(vx, vy, wz, dt, kappa)
         if self.collision is not None and (vx or vy or wz):
@@ -232,7 +245,12 @@ class PathFollower:
         self._vel = self._vel + a * (np.asarray(cmd) - self._vel)
 
     def _track(
-        self, pose: Pose2, path: np.ndarray, clearance: float, left: float
+        self,
+        pose: Pose2,
+        path: np.ndarray,
+        clearance: float,
+        left: float,
+        goal_yaw: float | None = None,
     ) -> tuple[float, float, float, str]:
         cfg = self.config
         assert self._s is not None
@@ -247,28 +265,69 @@ class PathFollower:
             )
         lx, ly, _ = compose(invert(pose), (float(target[0]), float(target[1]), 0.0))
         alpha = math.atan2(ly, lx)
+        if goal_yaw is not None and cfg.turn_ahead > 0.0 and not self._rotating:
+            turn = abs(float(wrap(goal_yaw - pose[2]))) / cfg.max_wz  # s at the top rate
+            if left < max(cfg.turn_ahead, math.hypot(*self._last[:2]) * turn):
+                self._ahead = True  # latched for this path: the turn shrinks as it goes
+            if self._ahead:
+                return self._turn_ahead(pose, lx, ly, clearance, left, goal_yaw)
         if abs(alpha) > cfg.rotate_threshold:
             self._rotating = True
         elif abs(alpha) < cfg.rotate_exit:
             self._rotating = False
         if self._rotating:
             wz = float(np.clip(cfg.rotate_gain * alpha, -cfg.max_wz, cfg.max_wz))
-            return 0.0, 0.0, wz, "rotate"
+            if clearance < cfg.slow_clearance or cfg.rotate_walk_speed <= 0.0:
+                return 0.0, 0.0, wz, "rotate"
+            # in the open it sets off along the path as it turns (any direction)
+            vx, vy = self._step_toward(lx, ly, cfg.rotate_walk_speed)
+            return vx, vy, wz, "rotate"
         d2 = lx * lx + ly * ly
         kappa = 2.0 * ly / max(d2, 1e-6)
         v = cfg.max_vx
         if abs(kappa) > 1.0 / cfg.regulation_radius:  # curvature regulation
             v *= 1.0 / (abs(kappa) * cfg.regulation_radius)
-        if clearance < cfg.slow_clearance:  # proximity regulation
-            f = (clearance - cfg.stop_clearance) / (cfg.slow_clearance - cfg.stop_clearance)
-            v *= float(np.clip(f, 0.0, 1.0))
-        v = max(v, cfg.min_speed)
-        v = min(v, max(cfg.approach_gain * left, cfg.final_min_speed))
+        v = self._speed_limit(clearance, left, v)
         wz = v * kappa
         if abs(wz) > cfg.max_wz:  # keep the arc: slow down rather than cut it
             v *= cfg.max_wz / abs(wz)
             wz = math.copysign(cfg.max_wz, wz)
         return v, 0.0, wz, "track"
+
+    def _speed_limit(self, clearance: float, left: float, v: float) -> float:
+        """``v`` regulated near obstacles (proximity regulation) and near the end."""
+        cfg = self.config
+        if clearance < cfg.slow_clearance:
+            f = (clearance - cfg.stop_clearance) / (cfg.slow_clearance - cfg.stop_clearance)
+            v *= float(np.clip(f, 0.0, 1.0))
+        v = max(v, cfg.min_speed)
+        return min(v, max(cfg.approach_gain * left, cfg.final_min_speed))
+
+    def _turn_ahead(
+        self, pose: Pose2, lx: float, ly: float, clearance: float, left: float, goal_yaw: float
+    ) -> tuple[float, float, float, str]:
+        """The path's last stretch: step toward the look-ahead point (base frame ``lx,
+        ly``) in any direction, turning to ``goal_yaw`` meanwhile (``turn_ahead``)."""
+        cfg = self.config
+        eyaw = float(wrap(goal_yaw - pose[2])) - self._vel[2] * cfg.response_lag  # at the stop
+        wz = float(np.clip(cfg.final_yaw_gain * eyaw, -cfg.max_wz, cfg.max_wz))
+        vx, vy = self._step_toward(lx, ly, self._speed_limit(clearance, left, cfg.max_vx))
+        return vx, vy, wz, "turn_ahead"
+
+    def _step_toward(self, lx: float, ly: float, speed: float) -> tuple[float, float]:
+        """(vx, vy): at most ``speed`` toward the base-frame point (lx, ly), within the
+        gait's forward and sideways limits, given in the frame the body will have turned
+        to: the gait follows over ``response_lag`` while the body turns (else the walk
+        bows to the turn's side)."""
+        cfg = self.config
+        d = math.hypot(lx, ly)
+        if d < 1e-6:
+            return 0.0, 0.0
+        ux, uy = lx / d, ly / d
+        v = min(speed, cfg.max_vy / max(abs(uy), 1e-6), cfg.max_vx / max(abs(ux), 1e-6))
+        turn = -self._vel[2] * cfg.response_lag
+        c, s = math.cos(turn), math.sin(turn)
+        return v * (c * ux - s * uy), v * (s * ux + c * uy)
 
     def _align(
         self,

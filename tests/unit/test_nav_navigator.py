@@ -13,6 +13,7 @@ import pytest
 from quadmanip.services.navigation.costmap import Costmap, CostmapConfig
 from quadmanip.services.navigation.grid import GridGeometry, Pose2, compose, transform_points
 from quadmanip.services.navigation.navigator import Navigator
+from quadmanip.services.navigation.path_follower import FollowerConfig
 from quadmanip.services.navigation.scan import lidar_mount, scan_points
 from quadmanip.testbench.floor_plan import FloorPlan, simulate_scan, true_floor_plan
 
@@ -42,13 +43,14 @@ def _run(
     limit_s: float = 90.0,
     seed: int = 0,
     start: Pose2 = START,
+    follower: FollowerConfig | None = None,
 ) -> tuple[str, str, Pose2, float, int]:
     """Closed loop: (final state, reason, final pose, time, steps touching the world)."""
     rng = np.random.default_rng(seed)
     geo = world.geometry
     cm = Costmap(CostmapConfig(), _occupancy(map_mask), geo)
     static = Costmap(CostmapConfig(), _occupancy(map_mask), geo)
-    nav = Navigator()
+    nav = Navigator(follower=follower)
     pose: Pose2 = start
     vel = np.zeros(3)
     why = nav.start(goal, 0.0, pose, cm, static)
@@ -89,6 +91,39 @@ def test_reaches_the_kitchen_through_the_doorway(plan):
     assert touching == 0
     # about 8 m at up to 0.5 m/s plus turns
     assert t < 30.0, t
+
+
+def test_a_walk_turns_to_its_goal_yaw_on_the_way_not_at_the_end(plan):
+    # 3 m straight on, to stand facing back the way it came (a stance facing its object)
+    goal = (3.8, 1.2, math.pi)
+    runs = {}
+    for ahead in (0.0, FollowerConfig().turn_ahead):
+        state, reason, pose, t, touching = _run(
+            plan, plan.mask, goal, follower=FollowerConfig(turn_ahead=ahead)
+        )
+        assert state == "reached", reason
+        assert touching == 0
+        assert math.hypot(pose[0] - goal[0], pose[1] - goal[1]) <= 0.06
+        runs[ahead] = t
+    turned_at_the_end, turned_on_the_way = runs.values()
+    # the half turn (pi at 1.4 rad/s: 2.2 s and more) overlaps the last metre's walk
+    # (measured 7.55 -> 6.55 s)
+    assert turned_on_the_way < turned_at_the_end - 0.6, runs
+
+
+def test_a_walk_that_starts_facing_away_sets_off_as_it_turns(plan):
+    goal = (3.8, 1.2, 0.0)
+    start = (0.8, 1.2, math.pi)
+    runs = {}
+    for speed in (0.0, FollowerConfig().rotate_walk_speed):
+        state, reason, pose, t, touching = _run(
+            plan, plan.mask, goal, start=start, follower=FollowerConfig(rotate_walk_speed=speed)
+        )
+        assert state == "reached", reason
+        assert touching == 0
+        runs[speed] = t
+    on_the_spot, setting_off = runs.values()
+    assert setting_off < on_the_spot - 0.3, runs  # measured 8.1 -> 7.05 s
 
 
 def test_passes_a_box_that_is_not_in_the_map(plan):

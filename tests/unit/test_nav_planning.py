@@ -251,6 +251,25 @@ def test_follower_reaches_random_goals(costmap):
     assert all(t <= b for _, t, b, _, _ in results)
 
 
+def test_the_first_turn_sets_off_in_the_open_and_turns_on_the_spot_by_furniture():
+    cfg = FollowerConfig()
+    follower = PathFollower(cfg)
+    path = np.stack([np.arange(2.0, 4.0, 0.05), np.full(40, 2.0)], axis=1)
+    facing_away = (2.0, 2.0, math.pi)  # the path leads off behind the robot
+    for clearance, sets_off in (
+        (cfg.slow_clearance + 0.2, True),
+        (cfg.slow_clearance - 0.1, False),
+    ):
+        follower.reset()
+        for _ in range(10):
+            cmd = follower.command(facing_away, path, None, clearance)
+        assert cmd.mode == "rotate" and abs(cmd.wz) > 1.0
+        if sets_off:  # it steps back toward the path as it turns
+            assert cmd.vx < -0.1 and math.hypot(cmd.vx, cmd.vy) <= cfg.rotate_walk_speed + 1e-9
+        else:
+            assert cmd.vx == 0.0 and cmd.vy == 0.0
+
+
 def test_collision_check_stops_before_an_obstacle(costmap):
     check = costmap_collision_check(costmap)
     pose = (4.95 - 0.45, 0.8, 0.0)  # facing the middle wall 0.45 m away
