@@ -44,13 +44,17 @@ def _run(
     seed: int = 0,
     start: Pose2 = START,
     follower: FollowerConfig | None = None,
+    navs: list[Navigator] | None = None,
 ) -> tuple[str, str, Pose2, float, int]:
-    """Closed loop: (final state, reason, final pose, time, steps touching the world)."""
+    """Closed loop: (final state, reason, final pose, time, steps touching the world);
+    the navigator is appended to ``navs``."""
     rng = np.random.default_rng(seed)
     geo = world.geometry
     cm = Costmap(CostmapConfig(), _occupancy(map_mask), geo)
     static = Costmap(CostmapConfig(), _occupancy(map_mask), geo)
     nav = Navigator(follower=follower)
+    if navs is not None:
+        navs.append(nav)
     pose: Pose2 = start
     vel = np.zeros(3)
     why = nav.start(goal, 0.0, pose, cm, static)
@@ -85,12 +89,17 @@ def plan() -> FloorPlan:
 
 
 def test_reaches_the_kitchen_through_the_doorway(plan):
-    state, reason, pose, t, touching = _run(plan, plan.mask, KITCHEN)
+    navs: list[Navigator] = []
+    state, reason, pose, t, touching = _run(plan, plan.mask, KITCHEN, navs=navs)
     assert state == "reached", reason
     assert math.hypot(pose[0] - KITCHEN[0], pose[1] - KITCHEN[1]) <= 0.06
     assert touching == 0
     # about 8 m at up to 0.5 m/s plus turns
     assert t < 30.0, t
+    # where the time went, for the log line that ends the walk: it all went somewhere
+    modes = navs[0].last_modes
+    assert modes["track"] > modes.get("final", 0.0) > 0.0, modes
+    assert sum(modes.values()) == pytest.approx(t, abs=0.1)
 
 
 def test_a_walk_turns_to_its_goal_yaw_on_the_way_not_at_the_end(plan):
