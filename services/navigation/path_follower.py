@@ -92,6 +92,10 @@ class FollowerConfig:
     # navigation's 3 cm tolerance).
     aim: float = 0.5
     stop_wait: float = 1.5  # s
+    # m: a goal whose xy tolerance is at least this (the task's walks, 10 cm, before an
+    # approach steps in precisely) ends once the body will stop inside it, without
+    # waiting to stand or nudging onto the aim (0.5-1 s of each walk's end, kinematic model)
+    loose_tolerance: float = 0.06
 
 
 @dataclass(frozen=True)
@@ -345,6 +349,8 @@ class PathFollower:
         eyaw = float(wrap(eyaw))
         dist = math.hypot(ex, ey)
         within = dist <= xy_tol and abs(eyaw) <= yaw_tol
+        if xy_tol >= cfg.loose_tolerance:
+            standing = None  # a loose goal: no waiting to stand, no nudges onto the aim
         if within and standing:
             self._settling = True  # bounded: the nudges' patience
             on_aim = dist <= cfg.aim * xy_tol and abs(eyaw) <= cfg.aim * yaw_tol
@@ -360,9 +366,12 @@ class PathFollower:
         # (its velocity, modelled from the commands, decays over ``response_lag``)
         px, py, pw = (float(v) for v in np.array([ex, ey, eyaw]) - self._vel * cfg.response_lag)
         stops = math.hypot(px, py) <= xy_tol and abs(pw) <= yaw_tol
+        # (all but stopped: slow enough that the stop after ``done`` stays well inside; a
+        # loose goal's end need not wait for the last creep to die out)
+        lag4 = 4.0 * cfg.response_lag
         stops &= bool(
-            math.hypot(self._vel[0], self._vel[1]) < 0.5 * cfg.final_min_speed
-            and abs(self._vel[2]) < 0.5 * cfg.final_min_wz
+            math.hypot(self._vel[0], self._vel[1]) < max(0.5 * cfg.final_min_speed, xy_tol / lag4)
+            and abs(self._vel[2]) < max(0.5 * cfg.final_min_wz, yaw_tol / lag4)
         )
         if within and stops:
             if standing is None:

@@ -500,6 +500,20 @@ def test_the_final_alignment_nudges_a_standing_robot():
     assert not waits[0].done and waits[-1].done
 
 
+def test_a_loose_goal_ends_where_the_body_stops_without_waiting_to_stand():
+    # the task's walks (10 cm) before an approach steps in precisely; a tight goal
+    # (3 cm) waits, standing still, until the robot stands
+    cfg = FollowerConfig()
+    path = np.array([[-0.5, 0.0], [0.0, 0.0]])
+    inside = (-0.02, 0.0, 0.0)
+    for tol, ends_at_once in ((0.10, True), (0.03, False)):
+        c = PathFollower(cfg).command(
+            inside, path, 0.0, 1.0, xy_tol=tol, yaw_tol=0.15, standing=False
+        )
+        assert c.done == ends_at_once, tol
+        assert c.vx == c.vy == c.wz == 0.0
+
+
 def test_planner_config_is_frozen():
     with pytest.raises(AttributeError):
         PlannerConfig().cost_weight = 1.0  # type: ignore[misc]
