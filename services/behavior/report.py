@@ -47,6 +47,9 @@ class ObjectRecord:
     unseen: int = 0  # probes from its probing area that detected no such object
     estimated: bool = False  # perception planned a grasp of it from close by at least once
     side_probe: bool = False  # perception asked for a look from the side (4.3: not level)
+    # rad: on a table, the heading it is stood at once its square stance met a leg (one of
+    # the task's ``table_slants``); None: square to the table
+    table_heading: float | None = None
     # the class the detector gave it from close by, in the probing view, when that was not
     # the class of its track: the memory's votes from afar no longer rename it
     close_label: str = ""
