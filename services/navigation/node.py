@@ -389,6 +389,9 @@ class NavigationNode(Service):
         tracks = self.objects_cache.get()
         if tracks is None or self.costmap is None or not self.floor_zones:
             return
+        g = self.navigator.goal
+        if g is not None and g.objects_off:
+            return  # left out for this walk (Navigator: no way around them)
         c = np.asarray(tracks.centroids, dtype=float).reshape(-1, 3)
         xy = transform_points(self.map_to_odom, c[:, :2]) if len(c) else c[:, :2]
         goal = self.navigator.goal.pose[:2] if self.navigator.goal is not None else None
@@ -689,6 +692,10 @@ class NavigationNode(Service):
     def _step_navigate(self, job: _Job, now: float, pose: Pose2) -> None:
         assert self.costmap is not None
         st = self.navigator.step(now, pose, self.costmap, standing=self._standing())
+        if self.navigator.notice:
+            self.log.info("navigate", decision=self.navigator.notice,
+                          map_pose=f"[{pose[0]:.2f}, {pose[1]:.2f}, {pose[2]:.2f}]")  # fmt: skip
+            self.navigator.notice = ""
         if st.new_path is not None:
             poses = self.navigator.path_poses()
             if poses is not None:
