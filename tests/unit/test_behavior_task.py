@@ -2242,19 +2242,28 @@ def test_standing_up_trusts_no_health_from_before_the_restart() -> None:
     assert not out.ok and out.interrupted == "locomotion"
 
 
+def _by_a_table_leg(
+    label: str, z: float, leg: tuple[float, float]
+) -> tuple[TaskReport, list[float]]:
+    """A run with ``label`` on the living table by its west end (2.1, 3.2, ``z``) and a
+    leg at ``leg``: the report and the headings of the approaches to it."""
+    things = _things()
+    things[2] = Thing(label, 3, (2.1, 3.2, z), on_table=True)
+    house = FakeHouse(things)
+    house.furniture = [leg]
+    report = _task(house).run()
+    heads = [a[2] for what, a in house.calls if what == "approach" and a[0][:2] == (2.1, 3.2)]
+    return report, heads
+
+
 def test_a_tall_table_object_whose_step_in_meets_a_leg_is_probed_again_turned() -> None:
     # seed-115: a coffee can 23 cm from the kitchen table's end; the side probe's stance
     # 0.86 m back was clear, its step in to 0.36 m met the leg, four times, and the can
     # was given up
-    things = _things()
-    things[2] = Thing("coffee_can", 3, (2.1, 3.2, 0.47), on_table=True)  # by the west end
-    house = FakeHouse(things)
-    house.furniture = [(1.95, 3.15)]  # the living table's south-west leg
-    report = _task(house).run()
+    report, heads = _by_a_table_leg("coffee_can", 0.47, (1.95, 3.15))
     rec = _record(report, "coffee_can")
     assert rec.placed, rec.failures
     square = PLACES["living_table"].stand[2]
-    heads = [a[2] for what, a in house.calls if what == "approach" and a[0][:2] == (2.1, 3.2)]
     assert heads[0] == pytest.approx(square)  # square first
     assert heads[-1] != pytest.approx(square)  # the grasp's step in, turned
     assert not any("step in" in f.reason for f in rec.failures)
@@ -2263,14 +2272,9 @@ def test_a_tall_table_object_whose_step_in_meets_a_leg_is_probed_again_turned() 
 def test_a_table_object_by_a_leg_is_approached_turned_toward_the_tables_middle() -> None:
     # paper-5: a mug 13 cm in from the kitchen table's end; square to the table the
     # stance met the table's leg, four times, and the mug was given up
-    things = _things()
-    things[2] = Thing("bowl", 3, (2.1, 3.2, 0.43), on_table=True)  # by the west end
-    house = FakeHouse(things)
-    house.furniture = [(2.0, 3.1)]  # the living table's south-west leg
-    report = _task(house).run()
+    report, heads = _by_a_table_leg("bowl", 0.43, (2.0, 3.1))
     assert _record(report, "bowl").placed
     table = PLACES["living_table"]
-    heads = [a[2] for what, a in house.calls if what == "approach" and a[0] == (2.1, 3.2)]
     assert heads[0] == pytest.approx(table.stand[2])  # square first
     # then turned at once: square again from the table's stand met the same leg
     # (seed-107: a sugar box, two square approaches stopped, 26 s each)
