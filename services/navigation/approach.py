@@ -219,9 +219,7 @@ class ApproachController:
         # given in today's base frame acts in one turned by about wz x lag, and an approach
         # that turns as it walks bowed toward the turn's side (the integration test's
         # turned stance: 18 cm, into the sofa's corner). Give it in that frame.
-        turn = -self._model[2] * cfg.lag
-        c, s = math.cos(turn), math.sin(turn)
-        cmd[:2] = (c * cmd[0] - s * cmd[1], s * cmd[0] + c * cmd[1])
+        cmd[:2] = compose((0.0, 0.0, -self._model[2] * cfg.lag), (cmd[0], cmd[1], 0.0))[:2]
         sp = math.hypot(cmd[0], cmd[1])
         if sp > cfg.max_speed:
             cmd[:2] *= cfg.max_speed / sp

@@ -208,9 +208,7 @@ class Navigator:
         return bool(np.any(costmap.cost_at(ahead) == LETHAL))
 
     def _end(self, state: str, reason: str, distance: float = math.inf) -> NavStep:
-        if self.goal is not None:
-            self.last_modes = self.goal.modes
-        self.goal = None
+        self.cancel()
         return NavStep(0.0, 0.0, 0.0, state, reason, distance)
 
     def _start_recovery(self, g: _Goal, now: float, pose: Pose2, costmap: Costmap) -> NavStep:

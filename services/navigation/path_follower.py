@@ -329,9 +329,8 @@ class PathFollower:
             return 0.0, 0.0
         ux, uy = lx / d, ly / d
         v = min(speed, cfg.max_vy / max(abs(uy), 1e-6), cfg.max_vx / max(abs(ux), 1e-6))
-        turn = -self._vel[2] * cfg.response_lag
-        c, s = math.cos(turn), math.sin(turn)
-        return v * (c * ux - s * uy), v * (s * ux + c * uy)
+        vx, vy, _ = compose((0.0, 0.0, -self._vel[2] * cfg.response_lag), (v * ux, v * uy, 0.0))
+        return vx, vy
 
     def _align(
         self,
