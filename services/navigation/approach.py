@@ -55,6 +55,11 @@ class ApproachConfig:
     gain_xy: float = 2.0
     gain_yaw: float = 2.0  # 1/s
     max_speed: float = 0.5  # m/s (norm of vx, vy); 0.35 until 2026-12-05: 9 % slower (bench)
+    # m/s: sideways, under locomotion's limit (configs/locomotion.toml [limits] vy = 0.4),
+    # which rejects a command beyond it whole: at 0.5 m/s a sideways step asked for up to
+    # 0.46 m/s, the robot stood still and the approach stalled 10 s (seed-116, 2026-12-05:
+    # four times, each then a retry). The command is scaled, keeping its direction.
+    max_vy: float = 0.35
     max_wz: float = 1.0  # rad/s
     min_speed: float = 0.03  # m/s per component: above the gait's ~0.02 m/s deadband
     min_wz: float = 0.08  # rad/s: above its turn-rate deadband
@@ -221,8 +226,7 @@ class ApproachController:
         # turned stance: 18 cm, into the sofa's corner). Give it in that frame.
         cmd[:2] = compose((0.0, 0.0, -self._model[2] * cfg.lag), (cmd[0], cmd[1], 0.0))[:2]
         sp = math.hypot(cmd[0], cmd[1])
-        if sp > cfg.max_speed:
-            cmd[:2] *= cfg.max_speed / sp
+        cmd[:2] *= min(1.0, cfg.max_speed / max(sp, 1e-9), cfg.max_vy / max(abs(cmd[1]), 1e-9))
         cmd[2] = float(np.clip(cmd[2], -cfg.max_wz, cfg.max_wz))
         bands = (cfg.inner_band * tol_xy, cfg.inner_band * tol_xy, cfg.inner_band * tol_yaw)
         mins = (cfg.min_speed, cfg.min_speed, cfg.min_wz)

@@ -334,6 +334,41 @@ def test_approach_controller_reaches_targets_precisely():
     assert max(times) < 20.0
 
 
+def test_every_walk_and_approach_command_is_one_locomotion_accepts():
+    # locomotion rejects a command beyond its limits whole, and the robot stands: at
+    # 0.5 m/s an approach asked for vy up to 0.46 m/s (limit 0.4) and stood 10 s, four
+    # times in seed-116's trial. The configured caps, and the commands themselves.
+    from quadmanip.common.config import load_config, load_toml
+    from quadmanip.services.navigation.config import NavigationConfig
+
+    lim = load_toml("locomotion")["limits"]
+    nav = load_config(NavigationConfig, "navigation")
+    f, a = nav.follower, nav.approach
+    assert f.max_vx <= lim["vx"] and f.max_vy <= lim["vy"] and f.max_wz <= lim["wz"]
+    assert a.max_vy <= lim["vy"] and min(a.max_speed, lim["vx"]) == a.max_speed
+    assert a.max_wz <= lim["wz"]
+    rng = np.random.default_rng(5)
+    worst = np.zeros(3)
+    for k in range(12):
+        start = (0.0, 0.0, 0.0)
+        bearing = math.pi / 2 * (1 if k % 2 else -1) + rng.uniform(-0.6, 0.6)  # sideways
+        dist = rng.uniform(0.3, 1.0)
+        goal = (dist * math.cos(bearing), dist * math.sin(bearing), rng.uniform(-1.0, 1.0))
+        base = LeggedBase(start, deadband=0.02, deadband_wz=0.05, seed=k)
+        ctl = ApproachController(a)
+        for _ in range(300):
+            vx, vy, wz, done = ctl.command(base.pose, goal, 0.01, math.radians(1.0))
+            if done:
+                break
+            worst = np.maximum(worst, np.abs((vx, vy, wz)))
+            base.step((vx, vy, wz))
+        assert done, f"target {goal} not reached"
+    print(f"largest commands: vx {worst[0]:.3f} vy {worst[1]:.3f} wz {worst[2]:.3f}")
+    assert worst[1] > 0.8 * a.max_vy  # (the sideways cap was met: this tests it)
+    assert worst[0] <= lim["vx"] + 1e-9 and worst[1] <= lim["vy"] + 1e-9
+    assert worst[2] <= lim["wz"] + 1e-9
+
+
 def test_an_approach_that_turns_as_it_walks_keeps_to_its_straight_line():
     # the turned stances of free_approach_heading are checked along the straight way to
     # them; turning 2.5 rad on the way, the approach used to bow 6.6 cm off it (its
