@@ -482,10 +482,15 @@ class BusRobot:
             tilt=float(res.tilt),
             mass=float(res.mass),
             hang=float(res.hang),
+            center=_xyz(res.center) if len(res.center) == 3 else None,
         )
 
     def grasp(self, plan: GraspPlan) -> Outcome:
-        position, yaw = carried_over(plan.position, plan.yaw, plan.seen_from, self._base())
+        base = self._base()
+        position, yaw = carried_over(plan.position, plan.yaw, plan.seen_from, base)
+        center = []
+        if plan.center is not None:
+            center = list(carried_over(plan.center, plan.yaw, plan.seen_from, base)[0])
         goal = m.GraspGoal(
             stamp=self.now(),
             position=list(position),
@@ -496,6 +501,7 @@ class BusRobot:
             tilt=plan.tilt,
             mass=plan.mass,
             hang=plan.hang,
+            center=center,
         )
         return self._act("grasp", goal)[0]
 

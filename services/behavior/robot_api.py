@@ -62,6 +62,7 @@ class GraspPlan:
     tilt: float = 0.0
     mass: float = 0.0
     hang: float = 0.0
+    center: Point3 | None = None  # the object's middle (frame of ``position``; None: unknown)
 
 
 @dataclass(frozen=True)

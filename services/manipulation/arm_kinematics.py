@@ -46,6 +46,7 @@ __all__ = [
     "IkSolution",
     "fk",
     "fk_tcp",
+    "held_offset",
     "solve_ik",
     "solve_ik_pose",
     "target_from_base_pose",
@@ -224,6 +225,15 @@ def fk_tcp(geom: ArmGeometry, q: np.ndarray | tuple[float, ...]) -> ArmTarget:
     x = g.d2 * s1 + g.d4 * c12 + g.d3 * s12 + g.d5 * c123
     z = g.d1 + g.d2 * c1 - g.d4 * s12 + g.d3 * c12 - g.d5 * s123
     return ArmTarget(x=x, z=z, pitch=wrap_angle(a123), roll=q4)
+
+
+def held_offset(geom: ArmGeometry, grasp: ArmTarget, offset_base: np.ndarray) -> np.ndarray:
+    """A held object's point (its middle) in the tool frame: ``offset_base`` (body frame)
+    from the grasp point, the tool at ``grasp`` (eq. (1)'s rotation ``Ry(pitch) Rx(roll)``
+    in ``arm_base``). The object turns with the tool from then on: at another tool pose
+    ``Ry(pitch') Rx(roll') @ held_offset`` is where that point is from the tool centre."""
+    d = quat_to_mat(geom.arm_base_quat).T @ np.asarray(offset_base, dtype=float)
+    return (rot_y(grasp.pitch) @ rot_x(grasp.roll)).T @ d
 
 
 def _in_range(v: float, lo: float, hi: float, tol: float = 1e-12) -> float | None:

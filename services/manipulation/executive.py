@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from quadmanip.common import robot_description as rd
 from quadmanip.common.reasons import reach_band_text
-from quadmanip.services.manipulation.arm_kinematics import ArmGeometry
+from quadmanip.services.manipulation.arm_kinematics import ArmGeometry, ArmTarget, held_offset
 from quadmanip.services.manipulation.config import ManipulationConfig
 from quadmanip.services.manipulation.drawer import DrawerPrimitive, plan_drawer
 from quadmanip.services.manipulation.grasp import (
@@ -106,6 +106,8 @@ class GraspRequest:
     tilt: float = 0.0
     mass: float = 0.0  # kg; 0 = unknown (the configured default is announced)
     hang: float = 0.0  # m below the grasp point; 0 = unknown (measured or default)
+    # the object's middle (base frame); None = unknown: a place puts the grasp point there
+    center: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -218,6 +220,9 @@ class Executive:
         self.monitor = GraspMonitor(cfg.gripper)
         self.body = BodyPoseRequest()  # body offsets last requested from locomotion
         self.hang = cfg.executive.default_hang  # of the object held (m below the tool)
+        # the held object's middle in the tool frame (None: not known; the grasp point is
+        # placed): from the grasp goal's ``center`` (perception's model of the object)
+        self.held: np.ndarray | None = None
         self._lock = threading.Lock()
         self._run: _Run | None = None
         self._grip_state = self.monitor.state
@@ -411,6 +416,7 @@ class Executive:
                 self.hang,
                 self.body,
                 yaw=request.yaw,
+                held=self.held,
             )
             return PlacePrimitive(self.geom, cfg, plan, **kw)
         if isinstance(request, DrawerRequest):
@@ -496,6 +502,14 @@ class Executive:
             return max(0.01, above_floor)
         return ex.default_hang
 
+    def _held_of(self, req: GraspRequest, grasp: ArmTarget) -> np.ndarray | None:
+        """The object's middle in the tool frame after a grasp at ``grasp`` (None: the
+        goal did not say where the middle is)."""
+        if req.center is None:
+            return None
+        offset = np.subtract(req.center, req.position)
+        return held_offset(self.geom, grasp, offset)
+
     def _finish(self, run: _Run) -> None:
         """The goal ended (call under the lock): keep what it leaves, free the slot."""
         prim = run.primitive
@@ -504,6 +518,7 @@ class Executive:
             if isinstance(prim, GraspPrimitive) and prim.status is Status.SUCCEEDED:
                 assert isinstance(run.request, GraspRequest)
                 self.hang = self._hang_of(run.request, prim.plan.approach)
+                self.held = self._held_of(run.request, prim.plan.reach)
         if self._run is run:
             self._run = None
         run.finished.set()

@@ -66,6 +66,7 @@ def to_request(goal: m.Message) -> Request | None:
             tilt=float(goal.tilt),
             mass=float(goal.mass),
             hang=float(goal.hang),
+            center=_xyz(goal.center) if len(goal.center) == 3 else None,
         )
     if isinstance(goal, m.PlaceGoal):
         return PlaceRequest(_xyz(goal.position), float(goal.yaw) if goal.turn else None)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from quadmanip.common.rotations import rot_x, rot_y
 from quadmanip.services.manipulation.arm_kinematics import (
     ArmGeometry,
     ArmTarget,
@@ -58,11 +59,19 @@ def plan_place(
     hang: float,
     body: BodyPoseRequest | None = None,
     yaw: float | None = None,
+    held: np.ndarray | None = None,
 ) -> PlacePlan:
     """Computes and checks the place poses; raises :class:`GraspRejected` with a reason.
 
     ``yaw`` turns the gripper (same convention as the grasp: ``yaw = 0`` fingers along the
     body y axis) so a long object fits a narrow region; None keeps the grasp's roll.
+    ``held`` is the object's middle in the tool frame (:func:`held_offset`; None: not
+    known): the tool then goes where that middle, not the tool centre, comes over
+    ``position_base``. A spoon held at its bowl is 6.5 cm off its middle, the screwdriver
+    and the clamp 5-6 cm: released at the tool centre, the spoon's handle lay on the
+    pencil case's rim and rocked there (the judge: not at rest; five trials). The body's
+    sideways shift stays within its limit: beyond it the middle is placed as near as it
+    allows.
     """
     g, clearance = cfg.grasp, cfg.primitive.transit_clearance
     body = body or BodyPoseRequest()
@@ -70,11 +79,11 @@ def plan_place(
     if p.shape != (3,) or not np.all(np.isfinite(p)) or not math.isfinite(hang) or hang < 0:
         raise GraspRejected("invalid_goal", "position must be 3 finite numbers, hang >= 0")
     target, lateral = target_from_base_pose(geom, p, 0.0, 0.0)
-    y_total = body.y_offset + lateral
-    if abs(y_total) > g.max_lateral_shift + 1e-9:
+    y_asked = body.y_offset + lateral
+    if abs(y_asked) > g.max_lateral_shift + 1e-9:
         raise GraspRejected(
             "lateral_out_of_range",
-            f"needs a body shift of {y_total:+.3f} m (limit {g.max_lateral_shift:.3f}); "
+            f"needs a body shift of {y_asked:+.3f} m (limit {g.max_lateral_shift:.3f}); "
             "reposition the robot",
         )
     now = fk_tcp(geom, q_now)
@@ -92,16 +101,19 @@ def plan_place(
     max_tilt = min(0.6, math.asin(min(1.0, g.place_max_lean / max(hang, 1e-3))))
     for tilt in np.arange(0.0, max_tilt + 0.01, 0.1):
         pt = pitch - tilt if pitch > 0.3 else pitch
+        # where the object's middle is from the tool centre at this pose (arm_base axes)
+        mid = np.zeros(3) if held is None else rot_y(pt) @ rot_x(roll) @ held
+        x = target.x - float(mid[0])
+        lim = g.max_lateral_shift
+        y_total = float(np.clip(y_asked - mid[1], -lim, lim))
         for rise in (0.0, 0.5 * g.max_rise, g.max_rise):
             z_rel = target.z - rise + hang + g.place_release_z
-            release = ArmTarget(target.x, z_rel, pt, roll)
+            release = ArmTarget(x, z_rel, pt, roll)
             # approach and retract as high as reachable, at least 4 cm (fingertips clear)
             for up in (g.retract_height, 0.07, 0.04):
-                transit = ArmTarget(target.x, z_rel + min(up, clearance), pt, roll)
+                transit = ArmTarget(x, z_rel + min(up, clearance), pt, roll)
                 # back out along the tool axis (up for a vertical tool, back for a level one)
-                retract = ArmTarget(
-                    target.x - up * math.cos(pt), z_rel + up * math.sin(pt), pt, roll
-                )
+                retract = ArmTarget(x - up * math.cos(pt), z_rel + up * math.sin(pt), pt, roll)
                 lines = [*_line(transit, release, 6), *_line(release, retract, 6)]
                 why = _reachable(geom, lines, q_now, cfg.primitive)
                 if not why:

@@ -148,6 +148,10 @@ class GraspEstimate:
     normal_z: float = math.nan
     # m: the object's top above its supporting surface, as measured (nan: not measured)
     height: float = math.nan
+    # the middle of the object's footprint (base frame; its minimum-area rectangle's
+    # centre, at half its height): where a place puts the object, as the grasp point may
+    # lie off it (a spoon is grasped at its bowl, 6.5 cm from its middle). nan: not known
+    center: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
     detail: str = ""  # a rejection's numbers, for the log and the operator
 
 
@@ -504,7 +508,8 @@ def _vertical(
     best: _Pass | None = None
     # a solid footprint wider than the fingers' span every way (a bowl) cannot be closed
     # around: straight to the wall pinch (a clamp is as wide, but open: try it)
-    _, long_side, short_side = min_area_rect(lev[:, :2])
+    rect_angle, long_side, short_side = min_area_rect(lev[:, :2])
+    extra["center"] = _footprint_middle(obj, up, rect_angle, reference, height)
     solid = _footprint_area(lev[:, :2], cell) >= cfg.solid_share * long_side * short_side
     if short_side < cc.finger_span or not solid:
         for angle in (across, axis):
@@ -542,7 +547,8 @@ def _vertical(
             return _reject(name, "no graspable candidate", mass, n, **extra)
         roll = gripper_roll(fc[:2], est.position[:2], across, cc.roll_threshold)
         return GraspEstimate(
-            **{**est.__dict__, "yaw": _yaw_of_closing(roll), "normal_z": normal_z, "height": height}
+            **{**est.__dict__, "yaw": _yaw_of_closing(roll), "normal_z": normal_z,
+               "height": height, "center": extra["center"]}  # fmt: skip
         )
     width = best.width + pitch  # a sampled edge lies half a pixel inside, on average
     if width > cfg.max_width:
@@ -565,6 +571,7 @@ def _vertical(
         n_points=n,
         normal_z=normal_z,
         height=height,
+        center=extra["center"],
     )
 
 
@@ -641,6 +648,9 @@ def _horizontal(
         reach_in = min(reach_in, HORIZONTAL_GRASP_DEPTH)  # pads near a box's front face
     h_centre = front - reach_in
     pos = hm.to_base(0.5 * (u_min + u_max), surface + target, h_centre)
+    middle = hm.to_base(
+        0.5 * float(c[:, 0].min() + c[:, 0].max()), surface + 0.5 * obj_h, front - 0.5 * depth
+    )
     return GraspEstimate(
         ok=True,
         reason="",
@@ -656,7 +666,22 @@ def _horizontal(
         surface_height=surface,
         n_points=n,
         normal_z=normal_z,
+        center=middle,
     )
+
+
+def _footprint_middle(
+    obj: np.ndarray, up: np.ndarray, angle: float, reference: float, height: float
+) -> np.ndarray:
+    """The middle (base frame) of ``obj``'s footprint rectangle at ``angle`` (level frame),
+    halfway up from ``reference`` (the surface along ``up``) by ``height``."""
+    axes = vertical_axes(up, 0.0)
+    lev = obj @ axes.T
+    u = np.array([math.cos(angle), math.sin(angle)])
+    v = np.array([-u[1], u[0]])
+    pu, pv = lev[:, :2] @ u, lev[:, :2] @ v
+    xy = u * 0.5 * (pu.min() + pu.max()) + v * 0.5 * (pv.min() + pv.max())
+    return np.array([xy[0], xy[1], reference + 0.5 * height]) @ axes
 
 
 def _depth_along_view(c: np.ndarray, width: float, spec: object | None) -> float:

@@ -564,6 +564,7 @@ class PerceptionNode(Service):
             tilt=est.tilt,
             mass=est.mass,
             hang=est.hang,
+            center=list(est.center) if np.all(np.isfinite(est.center)) else [],
         )
 
     def _handle(self, handle: GoalHandle) -> m.Message:

@@ -5,7 +5,13 @@ import math
 import numpy as np
 import pytest
 from quadmanip.services.locomotion.controller import load_locomotion_config
-from quadmanip.services.manipulation.arm_kinematics import ArmGeometry, fk_tcp
+from quadmanip.common.rotations import rot_x, rot_y
+from quadmanip.services.manipulation.arm_kinematics import (
+    ArmGeometry,
+    ArmTarget,
+    fk_tcp,
+    held_offset,
+)
 from quadmanip.services.manipulation.config import load_manipulation_config
 from quadmanip.services.manipulation.drawer import plan_drawer
 from quadmanip.services.manipulation.grasp import GraspPrimitive, GraspRejected, plan_grasp
@@ -103,6 +109,30 @@ def test_place_keeps_a_tall_object_upright():
     # a short object may lean to reach farther
     far = plan_place(GEOM, CFG, np.array([0.48, 0.0, tray]), q, 0.03)
     assert far.release.pitch < math.pi / 2 - 0.05
+
+
+def test_a_place_puts_the_held_objects_middle_where_it_is_asked():
+    """Held 4 cm to the side of the grasp point (a spoon by its bowl), then turned a quarter
+    by the place's yaw: the tool goes where the object's middle comes over the point."""
+    q = resolve_postures(GEOM, CFG)["carry"]
+    grasp = ArmTarget(0.35, -0.25, math.pi / 2, 0.0)  # fingers along the body y
+    held = held_offset(GEOM, grasp, np.array([0.0, 0.04, -0.005]))
+    point = np.array([0.40, 0.01, 0.125])
+    plain = plan_place(GEOM, CFG, point, q, 0.03, yaw=math.pi / 2)
+    plan = plan_place(GEOM, CFG, point, q, 0.03, yaw=math.pi / 2, held=held)
+    r = plan.release
+    mid = rot_y(r.pitch) @ rot_x(r.roll) @ held  # the middle from the tool, arm_base axes
+    # in the body frame before the shift: the arm's plane lies the body shift to the side
+    x = GEOM.arm_base_pos[0] + r.x + mid[0]
+    y = plan.body.y_offset + mid[1]
+    assert (x, y) == pytest.approx((point[0], point[1]), abs=1e-6)
+    # turned a quarter, the 4 cm now lie along the body x: the tool stands 4 cm off there
+    assert abs(r.x - plain.release.x) == pytest.approx(0.04, abs=0.002)
+    assert plan.body.y_offset == pytest.approx(plain.body.y_offset, abs=0.002)
+    # a shift beyond the body's limit is cut to it (placed as near as it allows)
+    far = held_offset(GEOM, grasp, np.array([0.10, 0.0, 0.0]))  # 10 cm: the body y
+    cut = plan_place(GEOM, CFG, point, q, 0.03, yaw=math.pi / 2, held=far)
+    assert abs(cut.body.y_offset) == pytest.approx(CFG.grasp.max_lateral_shift)
 
 
 def test_body_requests_stay_within_locomotion_limits():

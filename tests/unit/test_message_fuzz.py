@@ -320,7 +320,12 @@ STRATEGIES: dict[type[Message], st.SearchStrategy] = {
     m.ActionResult: auto(m.ActionResult),
     m.ActionCancel: auto(m.ActionCancel),
     m.PostureGoal: auto(m.PostureGoal),
-    m.GraspGoal: auto(m.GraspGoal, mass=nonneg, hang=nonneg),
+    m.GraspGoal: auto(
+        m.GraspGoal, mass=nonneg, hang=nonneg,
+        center=st.sampled_from([0, 3]).flatmap(
+            lambda n: hnp.arrays(np.float64, (n,), elements=_float_elements(np.dtype("f8"), False))
+        ),
+    ),  # fmt: skip
     m.PlaceGoal: auto(m.PlaceGoal),
     m.DrawerGoal: auto(m.DrawerGoal, pull_direction=unit_vec),
     m.Disturbance: auto(m.Disturbance, duration=nonneg),

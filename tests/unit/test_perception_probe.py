@@ -85,3 +85,10 @@ def test_grasp_matches_ground_truth(cat, name, where):
     assert est.hang == pytest.approx(gt.hang, abs=HANG_TOL)
     assert est.tilt == pytest.approx(gt.tilt, abs=0.1)  # 0 except the bowl's 0.64 rad
     assert est.mass == pytest.approx(cat.objects[name].mass)
+    # the object's middle, which a place puts where it is asked (the spoon's grasp point,
+    # at its bowl, is 6.5 cm from it): its footprint's middle, as the catalogue's origin
+    middle = view.base_rotation.T @ (view.obj_position - view.base_position)
+    off = np.linalg.norm(est.center[:2] - middle[:2])
+    print(f"{name} {where}: middle {off * 1000:.1f} mm off, grasp point "
+          f"{np.linalg.norm(est.position[:2] - middle[:2]) * 1000:.1f} mm from it")  # fmt: skip
+    assert off < POS_TOL, f"the object's middle {off * 1000:.1f} mm off"
