@@ -4,8 +4,8 @@ import math
 
 import numpy as np
 import pytest
-from quadmanip.services.locomotion.controller import load_locomotion_config
 from quadmanip.common.rotations import rot_x, rot_y
+from quadmanip.services.locomotion.controller import load_locomotion_config
 from quadmanip.services.manipulation.arm_kinematics import (
     ArmGeometry,
     ArmTarget,
