@@ -539,7 +539,9 @@ class GraspGoal(Message):
             if not (math.isfinite(v) and v >= 0.0):
                 raise MessageError(f"GraspGoal.{field} must be finite and >= 0, got {v}")
         if len(self.center) not in (0, 3):
-            raise MessageError(f"GraspGoal.center must be empty or 3 numbers, got {len(self.center)}")
+            raise MessageError(
+                f"GraspGoal.center must be empty or 3 numbers, got {len(self.center)}"
+            )
 
 
 @message("qm.PlaceGoal", (1, 1))

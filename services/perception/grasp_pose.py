@@ -547,8 +547,13 @@ def _vertical(
             return _reject(name, "no graspable candidate", mass, n, **extra)
         roll = gripper_roll(fc[:2], est.position[:2], across, cc.roll_threshold)
         return GraspEstimate(
-            **{**est.__dict__, "yaw": _yaw_of_closing(roll), "normal_z": normal_z,
-               "height": height, "center": extra["center"]}  # fmt: skip
+            **{
+                **est.__dict__,
+                "yaw": _yaw_of_closing(roll),
+                "normal_z": normal_z,
+                "height": height,
+                "center": extra["center"],
+            }  # fmt: skip
         )
     width = best.width + pitch  # a sampled edge lies half a pixel inside, on average
     if width > cfg.max_width:

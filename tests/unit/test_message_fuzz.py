@@ -321,7 +321,9 @@ STRATEGIES: dict[type[Message], st.SearchStrategy] = {
     m.ActionCancel: auto(m.ActionCancel),
     m.PostureGoal: auto(m.PostureGoal),
     m.GraspGoal: auto(
-        m.GraspGoal, mass=nonneg, hang=nonneg,
+        m.GraspGoal,
+        mass=nonneg,
+        hang=nonneg,
         center=st.sampled_from([0, 3]).flatmap(
             lambda n: hnp.arrays(np.float64, (n,), elements=_float_elements(np.dtype("f8"), False))
         ),
