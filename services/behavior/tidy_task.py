@@ -863,6 +863,38 @@ class TidyTask:
             out.append((obj, rec))
         return out
 
+    def _left_behind(self) -> None:
+        """At the end, say in each unfinished record why it was not taken up (seed-116: a
+        tennis ball found, never tried, and nothing said why)."""
+        now = self.robot.now()
+        memory = self.robot.objects()
+        for rec in self.report.objects:
+            if rec.finished or rec.grasped:
+                continue
+            same = [
+                o
+                for o in memory
+                if (o.track_id == rec.track_id and rec.track_epoch == self.track_epoch)
+                or (o.label == rec.label and _dist(o.position, rec.position) < 0.3)
+            ]
+            if not same:
+                why = "not in perception's memory at the end"
+            else:
+                o = same[0]
+                why = (
+                    f"its track {o.track_id} is not confirmed (confidence {o.confidence:.2f})"
+                    if not o.confirmed or o.confidence < self.cfg.min_confidence
+                    else f"its track {o.track_id} was taken for an object done with"
+                    if o.track_id in self.done_tracks
+                    else f"its track {o.track_id} was left where the object fell from"
+                    if o.track_id in self.stale
+                    else "it lies by a deposit place"
+                    if self._tidy(o)
+                    else f"its track {o.track_id} is labelled {o.label}"
+                )
+            with self._lock:
+                rec.failures.append(Failure("search", f"not taken up: {why}", now))
+
     def _resting(self, p: Point3) -> bool:
         """Whether ``p`` could hold an object at rest: on the floor, or at table height
         over a search table (within ``zone_margin``). A track at table height anywhere
@@ -1351,6 +1383,7 @@ class TidyTask:
                     self._put_down()
                     self._look_where_it_fell(self._pose())
                     return Step.GO_TO_VIEWPOINT
+                self._left_behind()
                 return Step.DONE
             return Step.GO_TO_VIEWPOINT
         here = self._pose()

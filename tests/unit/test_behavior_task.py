@@ -2287,3 +2287,23 @@ def test_a_table_object_by_a_leg_is_approached_turned_toward_the_tables_middle()
         3.2 - CFG.task.probe_standoff * math.sin(ok),
     )
     assert stance[0] > 2.1 and math.dist(stance, (2.0, 3.1)) >= 0.35
+
+
+def test_an_object_found_and_never_taken_up_says_why() -> None:
+    # seed-116: a tennis ball found, never tried, and the report said nothing about why
+    ball, can = Thing("tennis_ball", 7, (1.5, 1.3, 0.03)), Thing("tomato_soup_can", 8, CAN.position)
+    house = FakeHouse([ball, can])
+    task = _task(house)
+    recs = {
+        t.label: ObjectRecord(t.label, t.track_id, "green_box", t.position, t_found=0.0)
+        for t in (ball, can)
+    }
+    task.report.objects.extend(recs.values())
+    house.memory[7] = SeenObject(7, "tennis_ball", ball.position, confirmed=False)
+    task._left_behind()
+    assert [f.reason for f in recs["tennis_ball"].failures] == [
+        "not taken up: its track 7 is not confirmed (confidence 1.00)"
+    ]
+    assert [f.reason for f in recs["tomato_soup_can"].failures] == [
+        "not taken up: not in perception's memory at the end"
+    ]
