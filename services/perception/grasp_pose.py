@@ -502,14 +502,15 @@ def _vertical(
                 name, "probe horizontally", mass, n, probe="horizontal", detail=why, **extra
             )
     cc = cfg.candidates
-    lev = obj @ vertical_axes(up, 0.0).T
+    level = vertical_axes(up, 0.0)
+    lev = obj @ level.T
     axis = object_axis(lev[:, :2], cc)
     across = axis + math.pi / 2
     best: _Pass | None = None
     # a solid footprint wider than the fingers' span every way (a bowl) cannot be closed
     # around: straight to the wall pinch (a clamp is as wide, but open: try it)
     rect_angle, long_side, short_side = min_area_rect(lev[:, :2])
-    extra["center"] = _footprint_middle(obj, up, rect_angle, reference, height)
+    extra["center"] = _footprint_middle(lev, level, rect_angle, reference, height)
     solid = _footprint_area(lev[:, :2], cell) >= cfg.solid_share * long_side * short_side
     if short_side < cc.finger_span or not solid:
         for angle in (across, axis):
@@ -676,12 +677,10 @@ def _horizontal(
 
 
 def _footprint_middle(
-    obj: np.ndarray, up: np.ndarray, angle: float, reference: float, height: float
+    lev: np.ndarray, axes: np.ndarray, angle: float, reference: float, height: float
 ) -> np.ndarray:
-    """The middle (base frame) of ``obj``'s footprint rectangle at ``angle`` (level frame),
-    halfway up from ``reference`` (the surface along ``up``) by ``height``."""
-    axes = vertical_axes(up, 0.0)
-    lev = obj @ axes.T
+    """The middle (base frame) of the footprint rectangle at ``angle`` of the points
+    ``lev`` (level frame, ``axes``), halfway up from ``reference`` by ``height``."""
     u = np.array([math.cos(angle), math.sin(angle)])
     v = np.array([-u[1], u[0]])
     pu, pv = lev[:, :2] @ u, lev[:, :2] @ v
