@@ -237,14 +237,17 @@ class GraspPrimitive(Primitive):
     def script(self) -> Script:
         """Algorithm 6: grasp-ready phase, grasp phase, close, verify, lift, verify."""
         plan, g = self.plan, self.cfg.grasp
-        self.stage("grasp_ready: open gripper, moveCOM", 0.05)
+        self.stage("grasp_ready: open gripper, moveCOM, arm above/behind the grasp point", 0.05)
         yield []
-        b = plan.body_ready
-        yield from self.move_body(
-            b.x_offset, b.y_offset, b.z_offset, during=self.open_gripper(plan.open_gap)
+
+        # the fingers open as the arm goes to its ready pose, and both while the trunk
+        # settles into its offsets (0.8-1.2 s a grasp): the pose is planned for the trunk as
+        # it will stand, and a trunk not yet down holds the tool higher than planned
+        ready = self.together(
+            self.open_gripper(plan.open_gap), self.move_joints(np.asarray(plan.q_ready))
         )
-        self.stage("grasp_ready: arm above/behind the grasp point", 0.2)
-        yield from self.move_joints(np.asarray(plan.q_ready))
+        b = plan.body_ready
+        yield from self.move_body(b.x_offset, b.y_offset, b.z_offset, during=ready)
         self.stage("grasp: approach", 0.4)
         yield from self.line_to(plan.reach)
         b = plan.body_grasp

@@ -148,26 +148,20 @@ class PlacePrimitive(Primitive):
     def script(self) -> Script:
         """Transit above the region, lower, open, retract, verify the fingers are empty."""
         plan = self.plan
-        self.stage("place: moveCOM", 0.05)
-        yield []
-        b = plan.body
-        yield from self.move_body(b.x_offset, b.y_offset, b.z_offset)
-        # checked before the release: the spoon slid out as a place began, and the release
-        # and the empty check then passed on nothing
-        self.require_holding("while the body moved")
-        self.stage("place: transit above the region", 0.2)
-        obs = self._last_obs
-        assert obs is not None
+        self.stage("place: moveCOM, transit above the region", 0.05)
+        obs = yield []
         sol = solve_ik(self.geom, plan.transit, q_ref=obs.q_arm, roll_symmetric=False)
         if not sol.ok:
             raise PrimitiveFailed(f"unreachable: {sol.detail}")
-        # rise first so the object clears whatever is between it and the region
-        here = fk_tcp(self.geom, obs.q_arm)
-        up = ArmTarget(here.x, max(here.z, plan.transit.z), here.pitch, float(obs.q_arm[3]))
-        if solve_ik(self.geom, up, q_ref=obs.q_arm, roll_symmetric=False).ok:
-            yield from self.line_to(up)
-        yield from self.line_to(plan.transit)
-        self.require_holding("on the way to the region")
+        # the transit runs while the trunk settles into its offsets (up to 1 s a place):
+        # it ends above the region, the lowering starts once both are done
+        b = plan.body
+        # checked all the way: the spoon slid out as a place began, and the release and the
+        # empty check then passed on nothing
+        yield from self.holding_on(
+            self.move_body(b.x_offset, b.y_offset, b.z_offset, during=self._transit()),
+            "on the way to the region",
+        )
         self.stage("place: lower", 0.45)
         yield from self.line_to(plan.release)
         self.require_holding("while lowering")
@@ -186,6 +180,18 @@ class PlacePrimitive(Primitive):
         if self.monitor.state is GripState.HOLDING:
             raise PrimitiveFailed("object_stuck: the fingers still hold something after release")
         yield from self.move_body(0.0, 0.0, 0.0, during=self.open_gripper())
+
+    def _transit(self) -> Script:
+        """Up first, so the object clears whatever is between it and the region, then
+        over to the transit pose above it."""
+        obs = self._last_obs
+        assert obs is not None
+        here = fk_tcp(self.geom, obs.q_arm)
+        plan = self.plan
+        up = ArmTarget(here.x, max(here.z, plan.transit.z), here.pitch, float(obs.q_arm[3]))
+        if solve_ik(self.geom, up, q_ref=obs.q_arm, roll_symmetric=False).ok:
+            yield from self.line_to(up)
+        yield from self.line_to(plan.transit)
 
     def _rise(self, height: float) -> Script:
         """The tool straight up by ``height``, or by as much of it as the arm reaches."""

@@ -222,6 +222,29 @@ class Primitive:
         t = self._last_obs.t if self._last_obs is not None else 0.0
         self._note(t, text, value)
 
+    @staticmethod
+    def together(*scripts: Script) -> Script:
+        """Runs ``scripts`` side by side (each gets every observation, their commands go
+        out together) until the last has ended: e.g. the fingers opening while the arm
+        moves, which drive different actuators."""
+        live, cmds = [], []
+        for s in scripts:
+            try:
+                cmds += next(s)
+                live.append(s)
+            except StopIteration:
+                pass
+        while live:
+            obs = yield cmds
+            cmds, still = [], []
+            for s in live:
+                try:
+                    cmds += s.send(obs)
+                    still.append(s)
+                except StopIteration:
+                    pass
+            live = still
+
     def run_trajectory(self, traj: JointTrajectory) -> Script:
         """Sends a trajectory and waits until the arm reached its end (or fails: stuck)."""
         obs = yield [ArmCommand(traj)]
@@ -322,6 +345,21 @@ class Primitive:
         """Fails the primitive with ``object_lost`` unless the gripper still holds."""
         if not self.monitor.holding:
             raise PrimitiveFailed(f"object_lost {where} ({self.monitor.state.value})")
+
+    def holding_on(self, script: Script, where: str) -> Script:
+        """Runs ``script`` and fails it with ``object_lost`` as soon as the gripper no
+        longer holds (not only at its end)."""
+        try:
+            cmds = next(script)
+        except StopIteration:
+            return
+        while True:
+            obs = yield cmds
+            self.require_holding(where)
+            try:
+                cmds = script.send(obs)
+            except StopIteration:
+                return
 
     def wait(self, duration: float) -> Script:
         """Idles for ``duration`` seconds of robot time."""
