@@ -69,6 +69,10 @@ class ObjectReport:
     time_s: float | None = None  # sim time the behavior spent on it
     failures: list[str] = field(default_factory=list)
     seen_as: list[str] = field(default_factory=list)  # the classes the robot gave it
+    # where it lay at the end (m, the judge's ground truth: scoring only): the start and
+    # this say whether it was moved, or knocked over (a cracker box lying flat: z 0.03)
+    start_xyz: list[float] = field(default_factory=list)
+    end_xyz: list[float] = field(default_factory=list)
 
 
 @dataclass
@@ -520,9 +524,12 @@ class TidyRun:
             o.found, o.grasped = rec["found"], rec["grasped"]
             o.placed_by_robot, o.time_s = rec["placed"], rec["time_s"]
             o.failures, o.seen_as = rec["failures"], rec["labels"]
+            o.start_xyz = [round(float(v), 3) for v in start]
             if judge is not None and name in list(judge.objects):
                 i = list(judge.objects).index(name)
                 o.where, o.judge_note = judge.locations[i], judge.notes[i]
+                if len(judge.positions) == len(judge.objects):
+                    o.end_xyz = [round(float(v), 3) for v in judge.positions[i]]
                 o.placed = name in list(judge.in_place) and bool(judge.valid)
             rep.objects.append(o)
         rep.unmatched = [
