@@ -148,20 +148,22 @@ class PlacePrimitive(Primitive):
     def script(self) -> Script:
         """Transit above the region, lower, open, retract, verify the fingers are empty."""
         plan = self.plan
-        self.stage("place: moveCOM, transit above the region", 0.05)
-        obs = yield []
+        self.stage("place: moveCOM", 0.05)
+        yield []
+        b = plan.body
+        # (the transit does not run while the trunk settles: with the cracker box held, the
+        # shoulder then still swung at 0.48 rad/s at the transit's end, paper-1 2026-12-06)
+        yield from self.move_body(b.x_offset, b.y_offset, b.z_offset)
+        # checked before the release, and all the way there: the spoon slid out as a place
+        # began, and the release and the empty check then passed on nothing
+        self.require_holding("while the body moved")
+        self.stage("place: transit above the region", 0.2)
+        obs = self._last_obs
+        assert obs is not None
         sol = solve_ik(self.geom, plan.transit, q_ref=obs.q_arm, roll_symmetric=False)
         if not sol.ok:
             raise PrimitiveFailed(f"unreachable: {sol.detail}")
-        # the transit runs while the trunk settles into its offsets (up to 1 s a place):
-        # it ends above the region, the lowering starts once both are done
-        b = plan.body
-        # checked all the way: the spoon slid out as a place began, and the release and the
-        # empty check then passed on nothing
-        yield from self.holding_on(
-            self.move_body(b.x_offset, b.y_offset, b.z_offset, during=self._transit()),
-            "on the way to the region",
-        )
+        yield from self.holding_on(self._transit(), "on the way to the region")
         self.stage("place: lower", 0.45)
         yield from self.line_to(plan.release)
         self.require_holding("while lowering")
