@@ -515,6 +515,10 @@ class Executive:
         prim = run.primitive
         if run.started:
             self.body = prim.body
+            if isinstance(prim, GraspPrimitive):
+                # (a grasp that failed may still leave something in the fingers: not the
+                # object the last offset was of)
+                self.held = None
             if isinstance(prim, GraspPrimitive) and prim.status is Status.SUCCEEDED:
                 assert isinstance(run.request, GraspRequest)
                 self.hang = self._hang_of(run.request, prim.plan.approach)

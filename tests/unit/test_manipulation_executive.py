@@ -6,6 +6,7 @@ trajectory exactly, and closing fingers stop on a 3 cm object and squeeze it.
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 
@@ -192,6 +193,27 @@ def test_grasp_runs_announces_its_payload_and_measures_the_hang():
         ex2.start()
         plant2.run(ex2)
         assert ex2.hang == pytest.approx(want or CFG.executive.default_hang)
+
+
+def test_a_grasp_keeps_where_the_objects_middle_is_in_the_fingers() -> None:
+    """The goal's ``center`` becomes the held object's middle in the tool frame, which the
+    place uses; a grasp without it (or one that fails) leaves none."""
+    ex = _executive()
+    plant = Plant(POSTURES["stow"])
+    base = _floor_grasp(ex)
+    middle = (base.position[0], base.position[1] + 0.05, base.position[2])
+    req = dataclasses.replace(base, center=middle)
+    assert ex.accept(req, plant.obs(), token=req).accepted
+    ex.start(req)
+    plant.run(ex)
+    assert ex.held is not None  # 5 cm, turned into the tool frame
+    assert np.linalg.norm(ex.held) == pytest.approx(0.05, abs=1e-9)
+    ex2 = _executive()
+    plant2 = Plant(POSTURES["stow"])
+    assert ex2.accept(base, plant2.obs(), token=base).accepted
+    ex2.start(base)
+    plant2.run(ex2)
+    assert ex2.held is None
 
 
 def test_a_pitched_posture_lifts_the_nose_and_the_next_grasp_levels_the_trunk_first():
