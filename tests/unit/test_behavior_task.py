@@ -2017,7 +2017,7 @@ def _bus_robot(config: BehaviorConfig = CFG, **clients: _Client):
 
 def test_the_adapter_speaks_each_services_frame() -> None:
     grasp_answer = m.GraspGoal(stamp=12.0, position=[0.4, 0.0, -0.2], yaw=0.3, width=0.06,
-                               object_name="mug", mass=0.1)  # fmt: skip
+                               object_name="mug", mass=0.1, center=[0.45, 0.02, -0.22])  # fmt: skip
     clients = {"estimate_grasp": _Client(grasp_answer), "grasp": _Client(), "place": _Client()}
     robot, node = _bus_robot(**clients, approach=_Client())
     assert robot.pose() == pytest.approx((0.0, 2.0, math.pi))
@@ -2043,6 +2043,8 @@ def test_the_adapter_speaks_each_services_frame() -> None:
     sent = node.clients["grasp"].sent[0]
     assert sent.position == pytest.approx([0.3, 0.0, -0.2]) and sent.yaw == pytest.approx(0.3)
     assert sent.mass == 0.1 and sent.object_name == "mug"
+    # the object's middle is carried over the step with the grasp point
+    assert sent.center == pytest.approx([0.35, 0.02, -0.22])
 
 
 def test_the_adapter_reports_rejections_failures_and_what_it_holds() -> None:
