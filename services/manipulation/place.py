@@ -107,6 +107,8 @@ def plan_place(
         lim = g.max_lateral_shift
         y_total = float(np.clip(y_asked - mid[1], -lim, lim))
         for rise in (0.0, 0.5 * g.max_rise, g.max_rise):
+            if body.z_offset + rise > g.max_rise + 1e-9:
+                continue  # (a place that failed risen left the trunk up: paper-1 asked 6 cm)
             z_rel = target.z - rise + hang + g.place_release_z
             release = ArmTarget(x, z_rel, pt, roll)
             # approach and retract as high as reachable, at least 4 cm (fingertips clear)

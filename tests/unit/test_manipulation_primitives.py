@@ -143,6 +143,15 @@ def test_body_requests_stay_within_locomotion_limits():
     assert g.max_rise <= lim.z_raise
     assert g.max_crouch <= lim.z_crouch
     assert max(g.max_lateral_shift, g.max_forward_shift) <= lim.shift
+    # a place after one that failed with the trunk risen (paper-1, 2026-12-06: 6 cm asked)
+    q = resolve_postures(GEOM, CFG)["carry"]
+    up = BodyPoseRequest(0.0, 0.0, g.max_rise)
+    for x, z in ((0.36, 0.25), (0.36, 0.3), (0.38, 0.225)):  # (these asked 4.5-6 cm)
+        try:
+            plan = plan_place(GEOM, CFG, np.array([x, 0.0, z]), q, 0.03, up)
+        except GraspRejected:
+            continue
+        assert -lim.z_crouch <= plan.body.z_offset <= lim.z_raise
 
 
 def test_place_fails_when_the_object_is_lost_on_the_way():
