@@ -875,7 +875,10 @@ class TidyTask:
                 o
                 for o in memory
                 if (o.track_id == rec.track_id and rec.track_epoch == self.track_epoch)
-                or (o.label == rec.label and _dist(o.position, rec.position) < 0.3)
+                or (
+                    o.label == rec.label
+                    and _dist(o.position, rec.position) < self.cfg.same_object_radius
+                )
             ]
             if not same:
                 why = "not in perception's memory at the end"

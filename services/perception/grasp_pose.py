@@ -554,7 +554,7 @@ def _vertical(
                 "normal_z": normal_z,
                 "height": height,
                 "center": extra["center"],
-            }  # fmt: skip
+            }
         )
     width = best.width + pitch  # a sampled edge lies half a pixel inside, on average
     if width > cfg.max_width:
