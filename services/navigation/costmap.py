@@ -149,18 +149,29 @@ class Costmap:
     def lethal_except_near(self, xy: tuple[float, float], radius: float) -> np.ndarray:
         """:attr:`lethal` without the object layer's cells within ``radius`` of ``xy``
         (the object an approach goes to is no obstacle to it)."""
-        geo = self.geometry
         objects = self.objects.copy()
-        cells = geo.to_cell(np.array([[xy[0] - radius, xy[1] - radius],
-                                      [xy[0] + radius, xy[1] + radius]]))  # fmt: skip
-        r0, c0 = max(int(cells[0][0]), 0), max(int(cells[1][0]), 0)
-        r1, c1 = min(int(cells[0][1]), geo.height - 1), min(int(cells[1][1]), geo.width - 1)
-        if r0 <= r1 and c0 <= c1:
-            rows, cols = np.mgrid[r0 : r1 + 1, c0 : c1 + 1]
-            centres = geo.cell_center(rows.ravel(), cols.ravel()) - (xy[0], xy[1])
-            near = (np.hypot(centres[:, 0], centres[:, 1]) <= radius).reshape(rows.shape)
-            objects[r0 : r1 + 1, c0 : c1 + 1] &= ~near
+        disc = self._disc(xy, radius)
+        if disc is not None:
+            win, near = disc
+            objects[win] &= ~near
         return self._lethal_with(objects)
+
+    def _disc(
+        self, xy: tuple[float, float], radius: float
+    ) -> tuple[tuple[slice, slice], np.ndarray] | None:
+        """The grid window around the disc of ``radius`` about ``xy`` and the mask of its
+        cells whose centres lie in the disc; None when the disc misses the grid."""
+        geo = self.geometry
+        rows, cols = geo.to_cell(np.array([[xy[0] - radius, xy[1] - radius],
+                                           [xy[0] + radius, xy[1] + radius]]))  # fmt: skip
+        r0, c0 = max(int(rows[0]), 0), max(int(cols[0]), 0)
+        r1, c1 = min(int(rows[1]), geo.height - 1), min(int(cols[1]), geo.width - 1)
+        if r0 > r1 or c0 > c1:
+            return None
+        rr, cc = np.mgrid[r0 : r1 + 1, c0 : c1 + 1]
+        centres = geo.cell_center(rr.ravel(), cc.ravel()) - (xy[0], xy[1])
+        near = (np.hypot(centres[:, 0], centres[:, 1]) <= radius).reshape(rr.shape)
+        return (slice(r0, r1 + 1), slice(c0, c1 + 1)), near
 
     def update_obstacles(
         self,
@@ -219,6 +230,34 @@ class Costmap:
         rr, cc = np.nonzero(changed)
         self._rebuild((int(rr.min()), int(rr.max()) + 1, int(cc.min()), int(cc.max()) + 1))
         return True
+
+    def forget_unseen_near(self, xy: tuple[float, float], radius: float, before: float) -> int:
+        """Clear the obstacle cells within ``radius`` of ``xy`` last marked before the
+        stamp ``before`` (those marked without a stamp count as never seen); returns how
+        many. For marks the LiDAR cannot confirm from where the robot stands (Nav2's
+        clear-costmap recovery, here limited to a goal's surroundings)."""
+        disc = self._disc(xy, radius)
+        if disc is None:
+            return 0
+        win, near = disc
+        stale = near & self.obstacles[win] & (self._seen[win] < before)
+        n = int(stale.sum())
+        if n:
+            self.obstacles[win] &= ~stale
+            self._rebuild((win[0].start, win[0].stop, win[1].start, win[1].stop))
+        return n
+
+    def obstacle_age_near(self, xy: tuple[float, float], radius: float, now: float) -> float | None:
+        """Seconds since the freshest obstacle-layer mark within ``radius`` of ``xy`` was
+        made (inf when marked without a stamp), or None when there is none."""
+        disc = self._disc(xy, radius)
+        if disc is None:
+            return None
+        win, near = disc
+        marked = near & self.obstacles[win]
+        if not marked.any():
+            return None
+        return float(now - self._seen[win][marked].max())
 
     def clear_obstacles(self) -> None:
         """Forget the obstacle layer (e.g. after relocalisation)."""

@@ -20,7 +20,7 @@ Outcomes and reasons follow :data:`quadmanip.common.messages.NAV_OUTCOMES`.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from quadmanip.services.navigation.costmap import INSCRIBED, LETHAL, Costmap
@@ -67,6 +67,9 @@ class NavigatorConfig:
     # m: a periodic re-plan replaces a free path only when this much shorter (a near-equal
     # route around a table, re-chosen each second, turned the robot back and forth)
     switch_margin: float = 0.3
+    # s: obstacle marks about a refused goal that no scan has made for this long are
+    # forgotten and the plan made again (see Navigator._plan_past_stale_marks)
+    stale_obstacle_age: float = 20.0
 
 
 @dataclass(frozen=True)
@@ -194,6 +197,26 @@ class Navigator:
             g.last_reason = res.reason
         return res
 
+    def _plan_past_stale_marks(
+        self, g: _Goal, now: float, pose: Pose2, costmap: Costmap, res: PlanResult
+    ) -> PlanResult:
+        """A goal refused for the obstacle layer's marks that no scan has confirmed for
+        ``stale_obstacle_age``: those marks are forgotten and the plan made again; the
+        LiDAR marks them anew if they are still there when the robot comes near. Else
+        ``res`` with the marks' age in its reason. (paper-3, 2026-12-06: a table's stand,
+        free on the map, was refused ten times from the far side of the house, and the
+        screwdriver on that table was given up unapproached.)"""
+        reach = costmap.config.robot_radius + costmap.geometry.resolution
+        xy = (g.pose[0], g.pose[1])
+        age = costmap.obstacle_age_near(xy, reach, now)
+        if age is None:
+            return res
+        n = costmap.forget_unseen_near(xy, reach, now - self.config.stale_obstacle_age)
+        if not n:
+            return replace(res, reason=f"{res.reason} (LiDAR marks {age:.0f} s old)")
+        self.notice = f"forgot {n} obstacle cells by the goal, unseen for {age:.0f} s"
+        return self._plan(g, now, pose, costmap)
+
     def _cost(self, path: np.ndarray, costmap: Costmap) -> float:
         return path_cost(costmap, path, self.planner_config)
 
@@ -311,6 +334,8 @@ class Navigator:
                 g.objects_off = True
                 self.notice = "no way around the floor objects: walking without their layer"
                 res = self._plan(g, now, pose, costmap)
+            if not res.ok and res.reason.startswith("goal"):
+                res = self._plan_past_stale_marks(g, now, pose, costmap, res)
             if not res.ok:
                 g.path = None
                 if res.reason.startswith("goal"):

@@ -380,7 +380,9 @@ class NavigationNode(Service):
         if self.costmap is not None and len(pts.points):
             sensor = compose(compose(self.map_to_odom, odom), self.mount)
             base = compose(self.map_to_odom, odom)
-            self.costmap.update_obstacles(transform_points(base, pts.points), sensor)
+            self.costmap.update_obstacles(
+                transform_points(base, pts.points), sensor, stamp=float(scan.stamp)
+            )
             self._update_objects(base)
 
     def _update_objects(self, base: Pose2) -> None:

@@ -46,34 +46,40 @@ def _run(
     follower: FollowerConfig | None = None,
     navs: list[Navigator] | None = None,
     objects: list[tuple[float, float, float]] | None = None,
+    marks: tuple[np.ndarray, float] | None = None,
+    t0: float = 0.0,
 ) -> tuple[str, str, Pose2, float, int]:
-    """Closed loop: (final state, reason, final pose, time, steps touching the world);
-    the navigator is appended to ``navs``; ``objects``: floor objects' discs in the
-    costmap (not in the world: low objects the LiDAR does not see)."""
+    """Closed loop from robot time ``t0``: (final state, reason, final pose, time, steps
+    touching the world); the navigator is appended to ``navs``; ``objects``: floor
+    objects' discs in the costmap (not in the world: low objects the LiDAR does not see);
+    ``marks``: obstacle-layer points (N, 2) made before the start, and their stamp."""
     rng = np.random.default_rng(seed)
     geo = world.geometry
     cm = Costmap(CostmapConfig(), _occupancy(map_mask), geo)
     static = Costmap(CostmapConfig(), _occupancy(map_mask), geo)
     if objects:
         cm.set_objects(objects)
+    if marks is not None:
+        pts, stamp = marks
+        cm.update_obstacles(pts, (pts[0, 0], pts[0, 1] - 0.05, 0.0), stamp=stamp)
     nav = Navigator(follower=follower)
     if navs is not None:
         navs.append(nav)
     pose: Pose2 = start
     vel = np.zeros(3)
-    why = nav.start(goal, 0.0, pose, cm, static)
+    why = nav.start(goal, t0, pose, cm, static)
     if why:
-        return why.split(":")[0], why, pose, 0.0, 0
+        return why.split(":")[0], why, pose, t0, 0
     mount = lidar_mount()
     touching = 0
-    t = 0.0
+    t = t0
     k = 0
-    while t < limit_s:
+    while t < t0 + limit_s:
         if k % 2 == 0:  # 10 Hz scans into the obstacle layer
             lp = compose(pose, mount)
             r = simulate_scan(world, lp, rng=rng)
             pts = scan_points(t, r, -math.pi, 2 * math.pi / len(r), 0.1, 12.0, mount)
-            cm.update_obstacles(transform_points(pose, pts.points), lp)
+            cm.update_obstacles(transform_points(pose, pts.points), lp, stamp=t)
         st = nav.step(t, pose, cm)
         if st.state != "active":
             return st.state, st.reason, pose, t, touching
@@ -169,6 +175,40 @@ def test_passes_a_box_that_is_not_in_the_map(plan):
     assert state == "reached", reason
     assert touching == 0
     assert math.hypot(pose[0] - goal[0], pose[1] - goal[1]) <= 0.06
+
+
+# a short line of LiDAR marks 0.15 m beyond the kitchen goal: inside the robot's radius
+_BY_GOAL = np.array([[KITCHEN[0] + dx, KITCHEN[1] + 0.15] for dx in (-0.05, 0.0, 0.05)])
+
+
+def test_old_marks_by_a_far_goal_are_forgotten_and_walked_to(plan):
+    # marked 30 s ago and not seen since (20 s is the config's age): the walk goes
+    state, reason, pose, t, touching = _run(plan, plan.mask, KITCHEN, marks=(_BY_GOAL, 0.0),
+                                            t0=30.0)  # fmt: skip
+    assert state == "reached", reason
+    assert touching == 0
+    assert math.hypot(pose[0] - KITCHEN[0], pose[1] - KITCHEN[1]) <= 0.06
+
+
+def test_fresh_marks_by_a_goal_refuse_it_at_once_and_say_how_old(plan):
+    state, reason, _, t, _ = _run(plan, plan.mask, KITCHEN, marks=(_BY_GOAL, 0.0), t0=5.0)
+    assert state == "blocked", (state, reason)
+    assert "goal too close to an obstacle" in reason and "marks 5 s old" in reason, reason
+    assert t == 5.0
+
+
+def test_a_forgotten_mark_that_is_really_there_is_seen_again_and_refuses_the_goal(plan):
+    lo, hi = _BY_GOAL.min(axis=0) - 0.02, _BY_GOAL.max(axis=0) + 0.02
+    world = _with_box(plan, (float(lo[0]), float(lo[1])), (float(hi[0]), float(hi[1])))
+    state, reason, pose, t, touching = _run(world, plan.mask, KITCHEN,
+                                            marks=(_BY_GOAL, 0.0), t0=30.0)  # fmt: skip
+    assert state == "blocked", (state, reason)
+    assert "goal too close to an obstacle" in reason and "marks 0 s old" in reason, reason
+    assert touching == 0
+    # it set off, and stopped when its LiDAR (4 m marking range) saw the box again
+    assert t > 32.0
+    assert pose[0] > START[0] + 1.0
+    assert math.hypot(pose[0] - KITCHEN[0], pose[1] - KITCHEN[1]) < 4.2
 
 
 def test_a_blocked_doorway_ends_blocked_with_a_reason_within_30_s(plan):
