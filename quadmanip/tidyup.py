@@ -73,6 +73,9 @@ class ObjectReport:
     # this say whether it was moved, or knocked over (a cracker box lying flat: z 0.03)
     start_xyz: list[float] = field(default_factory=list)
     end_xyz: list[float] = field(default_factory=list)
+    # the behavior's records merged into this object: where each was last believed (map
+    # xy), its time and whether it was placed; a second record is a twin track
+    records: list[dict[str, Any]] = field(default_factory=list)
 
 
 @dataclass
@@ -525,6 +528,16 @@ class TidyRun:
             o.placed_by_robot, o.time_s = rec["placed"], rec["time_s"]
             o.failures, o.seen_as = rec["failures"], rec["labels"]
             o.start_xyz = [round(float(v), 3) for v in start]
+            o.records = [
+                {
+                    "xy": [round(v, 2) for v in records[i]["xy"]],
+                    "time_s": None
+                    if records[i]["time_s"] is None
+                    else round(records[i]["time_s"], 1),
+                    "placed": records[i]["placed"],
+                }
+                for i in rec["ids"]
+            ]
             if judge is not None and name in list(judge.objects):
                 i = list(judge.objects).index(name)
                 o.where, o.judge_note = judge.locations[i], judge.notes[i]

@@ -290,7 +290,13 @@ class PerceptionNode(Service):
             ]
             with self.lock:
                 self._follow_the_map()
+                before = {t.id for t in self.memory.tracks()}
                 self.memory.update(obs, view, img.stamp)
+                new = [t for t in self.memory.tracks() if t.id not in before]
+            for t in new:  # where a track comes from, for whoever reads a trial's log
+                self.log.info("track confirmed", id=t.id, cls=t.class_name, camera=cam,
+                              odom=f"[{t.centroid[0]:.2f}, {t.centroid[1]:.2f}, "
+                                   f"{t.centroid[2]:.2f}]", seen=t.observations)  # fmt: skip
         where = {id(x.detection): x for x in located}
         n = len(dets)
         cents = np.zeros((n, 3))

@@ -110,6 +110,11 @@ def test_one_class_seen_twice_counts_once():
     spoon = next(o for o in rep.objects if o.name == "spoon")
     assert spoon.grasped and spoon.placed_by_robot and spoon.time_s == 45.0
     assert spoon.failures == ["grasp: no_object"]
+    # both records stay visible: a second one is a twin track, and what it cost
+    assert spoon.records == [
+        {"xy": [2.28, 0.78], "time_s": 5.0, "placed": False},
+        {"xy": [2.3, 0.8], "time_s": 40.0, "placed": True},
+    ]
 
 
 def test_a_misclassified_object_is_matched_by_where_it_was_first_seen():
