@@ -681,13 +681,17 @@ class NavigateGoal(Message):
                 raise MessageError(f"NavigateGoal.{f} must be > 0, got {v}")
 
 
-@message("qm.ApproachGoal", (1, 0))
+@message("qm.ApproachGoal", (1, 1))
 class ApproachGoal(Message):
     """A precise final approach (Algorithm 5's move to the probing area; standing square
     to a drawer or a box): stand so that ``target`` (x, y in ``frame``: ``base`` at the
     goal's stamp, or ``odom``) lies ``standoff`` m straight ahead of the base, facing
     ``heading`` (rad, in ``frame``), or facing the target from where the robot is when
-    ``face_target``. Reached within ``tolerance_xy`` (m) and ``tolerance_yaw`` (rad)."""
+    ``face_target``. Reached within ``tolerance_xy`` (m) and ``tolerance_yaw`` (rad).
+    ``turn_free`` (1.1: added): the stance may turn about the target from ``heading`` to
+    the nearest heading whose trunk stands clear of the furniture in navigation's map,
+    reaching with its nose (not its middle) into a keepout area: an object on a table by
+    one of its legs."""
 
     stamp: float
     target: np.ndarray = array("f8", (2,))
@@ -697,6 +701,7 @@ class ApproachGoal(Message):
     face_target: bool = False
     tolerance_xy: float = 0.01
     tolerance_yaw: float = 0.0175
+    turn_free: bool = False
 
     def _check(self) -> None:
         if not (math.isfinite(self.standoff) and 0.0 <= self.standoff <= 3.0):

@@ -442,6 +442,7 @@ class BusRobot:
         standoff: float,
         heading: float | None = None,
         loose: bool = False,
+        turn_free: bool = False,
     ) -> Outcome:
         c = self.cfg
         m2o = self._map_to_odom()
@@ -455,6 +456,7 @@ class BusRobot:
             face_target=heading is None,
             tolerance_xy=c.stand_tolerance_xy if loose else c.approach_tolerance_xy,
             tolerance_yaw=c.stand_tolerance_yaw if loose else c.approach_tolerance_yaw,
+            turn_free=turn_free and heading is not None,
         )
         return self._act("approach", goal)[0]
 

@@ -134,11 +134,14 @@ class RobotApi(Protocol):
         standoff: float,
         heading: float | None = None,
         loose: bool = False,
+        turn_free: bool = False,
     ) -> Outcome:
         """Stand so that map point ``target`` lies ``standoff`` m straight ahead, facing
         ``heading`` (map, rad) or, when None, facing the target (Algorithm 5); to the
         probing tolerance, or the looser stand tolerance when ``loose`` (a place's stand:
-        the place plans from wherever the robot stands)."""
+        the place plans from wherever the robot stands). ``turn_free``: navigation may
+        turn the stance about the target off ``heading`` to stand clear of furniture
+        (a table's leg; ``ApproachGoal.turn_free``)."""
         ...
 
     def move_to_posture(self, posture: str) -> Outcome:

@@ -445,9 +445,10 @@ class _GuardedRobot:
         standoff: float,
         heading: float | None = None,
         loose: bool = False,
+        turn_free: bool = False,
     ) -> Outcome:
         self._before()
-        return self._after(self._r.approach(target, standoff, heading, loose))
+        return self._after(self._r.approach(target, standoff, heading, loose, turn_free))
 
     def move_to_posture(self, posture: str) -> Outcome:
         self._before()
@@ -1518,10 +1519,18 @@ class TidyTask:
             if not out.ok:
                 return self._give_up_or(Step.APPROACH, f"walk: {out.reason}", Step.APPROACH)
             self._refresh_target()
-        out = self.robot.approach(
-            (rec.position[0], rec.position[1]), probe.standoff, self._facing(rec, probe.standoff)
-        )
         table = self._table_of(rec)
+        # on a table, navigation may turn the stance about the object off the square one
+        # to keep the trunk clear of a leg (its map holds them): once, then kept
+        turn_free = table is not None and rec.table_heading is None
+        out = self.robot.approach(
+            (rec.position[0], rec.position[1]),
+            probe.standoff,
+            self._facing(rec, probe.standoff),
+            turn_free=turn_free,
+        )
+        if out.ok and turn_free and table is not None:
+            self._keep_turned_stance(rec, table)
         if not out.ok and FOOTPRINT in out.reason and table is None:
             # it stands against furniture (by a deposit place, a table's leg), and the
             # approach's straight line leads into it: the planner's path leads clear first
@@ -1561,6 +1570,16 @@ class TidyTask:
         if not out.ok and UNSETTLED not in out.reason:
             return self._give_up_or(Step.APPROACH, f"approach: {out.reason}", Step.APPROACH)
         return Step.PROBE
+
+    def _keep_turned_stance(self, rec: ObjectRecord, table: Place) -> None:
+        """After an approach navigation could turn: a stance it turned off the table's
+        square heading is the heading for the probe's step in and the grasp too."""
+        pose = self.robot.pose()
+        if pose is None:
+            return
+        if abs(wrap(pose[2] - table.stand[2])) > 0.5 * min(self.cfg.table_slants, default=0.3):
+            with self._lock:
+                rec.table_heading = pose[2]
 
     def _table_slants(self, rec: ObjectRecord, table: Place) -> list[float]:
         """Headings turned from the table's square one by ``table_slants``, the way that

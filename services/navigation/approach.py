@@ -38,10 +38,17 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from quadmanip.services.navigation.costmap import Costmap
 from quadmanip.services.navigation.grid import Pose2, compose, invert, wrap
 from quadmanip.services.navigation.standing_nudge import NudgeConfig, StandingNudge
 
-__all__ = ["ApproachConfig", "ApproachController", "approach_pose", "free_approach_heading"]
+__all__ = [
+    "ApproachConfig",
+    "ApproachController",
+    "approach_pose",
+    "free_approach_heading",
+    "stance_clear",
+]
 
 
 @dataclass(frozen=True)
@@ -130,6 +137,26 @@ def free_approach_heading(
         if free(stance, margin) and all(free(w, margin) for w in ways):
             return h
     return None
+
+
+def stance_clear(
+    costmap: Costmap,
+    lethal: np.ndarray,
+    pose: Pose2,
+    margin: float,
+    nose_in: np.ndarray | None = None,
+) -> bool:
+    """Whether the trunk at ``pose`` (map frame) with ``margin`` overlaps no cell of
+    ``lethal``. ``nose_in`` (a mask of the grid, e.g. the keepout areas of table tops the
+    LiDAR passes under) counts as free for the trunk's ends but not under its middle: a
+    stance at a table may reach in under the top with its nose, not stand under it."""
+    if nose_in is not None:
+        geo = costmap.geometry
+        (r,), (c,) = geo.to_cell(np.array([pose[:2]], dtype=float))
+        if not geo.inside(r, c) or nose_in[r, c]:
+            return False
+        lethal = lethal & ~nose_in
+    return costmap.footprint_free(pose, margin, lethal)
 
 
 def approach_pose(

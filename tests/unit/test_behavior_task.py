@@ -159,6 +159,9 @@ class FakeHouse:
         self.waits: list[tuple[tuple[float, float, float], str, bool]] = []  # where, how, seeing
         self.settled_at = 0.0
         self.loose_approaches = 0
+        self.turn_free_approaches = 0
+        # (heading asked, heading navigation turns a turn_free stance to) near an object
+        self.free_turn: tuple[float, float] | None = None
         # walk goals within 1.1 m of these objects that navigation refuses (in an
         # obstacle), this many times each
         self.refuse_near: dict[str, int] = {}
@@ -403,8 +406,9 @@ class FakeHouse:
         self._look()
         return Outcome(True)
 
-    def approach(self, target, standoff, heading=None, loose=False):
+    def approach(self, target, standoff, heading=None, loose=False, turn_free=False):
         self.calls.append(("approach", (tuple(target), standoff, heading)))
+        self.turn_free_approaches += bool(turn_free)
         self.loose_approaches += bool(loose)
         if (refused := self._request("approach")) is not None:
             return refused
@@ -414,6 +418,8 @@ class FakeHouse:
         if self.touching is not None and self.touching(tuple(target[:2])):
             self.t += 0.2
             return Outcome(False, "blocked: an obstacle touches the footprint")
+        if turn_free and self.free_turn is not None and abs(heading - self.free_turn[0]) < 0.05:
+            heading = self.free_turn[1]  # navigation turned the stance clear of the leg
         if heading is not None and any(
             abs(heading - b) < 0.05 and math.dist(target[:2], at) < 0.5
             for b, at in self.blocked_headings
@@ -762,6 +768,28 @@ def test_report_and_progress_say_what_happened(tidy_run) -> None:
 
 
 # ------------------------------------------------------------------ retries and give-up
+
+
+def test_a_table_stance_navigation_turned_clear_of_a_leg_is_kept_for_probe_and_grasp() -> None:
+    """paper-5 (2026-12-06): a mug 13 cm in from the kitchen table's end; square to the
+    table the trunk met a leg, and the slanted stances met it too: twelve approaches,
+    given up. The first approach to a table object lets navigation turn the stance about
+    the object (its map holds the legs); the task keeps the heading it stood at."""
+    bowl = _things()[2]
+    house = FakeHouse([bowl])
+    square = PLACES["living_table"].stand[2]
+    house.blocked_headings = [(square, bowl.position[:2])]  # a leg by the square stance
+    house.free_turn = (square, square + 0.7)
+    report = _task(house).run()
+    rec = _record(report, "bowl")
+    assert rec.placed and rec.attempts == 0 and not rec.failures, rec.failures
+    assert house.turn_free_approaches == 1  # the first approach only
+    # the heading it stood at is the one the probe's step in and the grasp keep
+    assert rec.table_heading == pytest.approx(square + 0.7)
+    # no walk back to the table's stand for a slanted try: from the approach to the grasp
+    kinds = [w for w, _ in house.calls]
+    i = next(k for k, (w, a) in enumerate(house.calls) if w == "approach" and a[2] == square)
+    assert "navigate_to" not in kinds[i : kinds.index("grasp")], kinds[i:]
 
 
 def test_a_lateral_rejection_at_a_slanted_table_stance_steps_sideways() -> None:

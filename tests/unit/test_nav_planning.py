@@ -726,3 +726,49 @@ def test_an_approach_stance_against_furniture_is_turned_about_the_target():
     assert free_approach_heading(never, start, target, standoff, 0.0, turns, keep, wide) is None
     # free ahead: the heading itself
     assert free_approach_heading(always, start, target, standoff, 0.3, turns, keep, wide) == 0.3
+
+
+def test_a_table_stance_by_a_leg_turns_about_the_object_nose_under_the_top():
+    # paper-5 (2026-12-06): a mug 13 cm in from the kitchen table's west end, 20 cm from
+    # its edge. Square to the table the trunk stands on the leg at the corner; the keepout
+    # of the table (its top lies above the LiDAR) holds every stance near it, so the
+    # turned stances were never tried. With the nose allowed in under the top (not the
+    # trunk's middle) a stance turned toward the table's middle is clear of the leg.
+    from quadmanip.common.config import load_config
+    from quadmanip.services.navigation.approach import stance_clear
+    from quadmanip.services.navigation.config import NavigationConfig
+    from quadmanip.services.navigation.costmap import with_keepouts
+    from quadmanip.services.navigation.map_io import load_map
+    from quadmanip.services.navigation.node import resolve_map_path
+    from quadmanip.services.navigation.places import load_places, places_path_for
+
+    nav = load_config(NavigationConfig, "navigation")
+    path = resolve_map_path(nav.node.map)
+    occ, geo = load_map(path)
+    places = load_places(places_path_for(path))
+    static = with_keepouts(occ, geo, [p.area for p in places.values() if p.keepout])
+    cm = Costmap(nav.costmap, static, geo)
+    under_top = cm.static_lethal & ~(occ >= nav.costmap.occupied_threshold)
+    table = places["kitchen_table"]
+    mug, square, standoff = (6.881, 2.005), table.stand[2], 0.36
+    guard, margin = nav.node.approach_guard, nav.approach.free_margin
+    start = table.stand
+
+    def free(pose, m, nose_in=under_top):
+        return stance_clear(cm, cm.lethal, pose, m, nose_in)
+
+    square_stance = approach_pose(mug, standoff, square)
+    assert not free(square_stance, guard)  # the leg
+    assert not free(square_stance, guard, None)  # (and the keepout)
+    h = free_approach_heading(free, start, mug, standoff, square, nav.approach.free_turns,
+                              guard, margin)  # fmt: skip
+    assert h is not None and 0.3 < abs(wrap(h - square)) < 1.1, h
+    stance = approach_pose(mug, standoff, h)
+    assert stance[0] > mug[0]  # moved toward the table's middle, away from the leg
+    assert stance[1] > table.area[3]  # its middle outside the table's top
+    # without the nose rule nothing near the table is free: the square stance it keeps
+    keep = free_approach_heading(
+        lambda p, m: free(p, m, None), start, mug, standoff, square, nav.approach.free_turns,
+        guard, margin,
+    )  # fmt: skip
+    assert keep is None
