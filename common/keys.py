@@ -302,6 +302,7 @@ _TABLE: tuple[Topic, ...] = (
     # perception
     row("perception", "detections", m.Detections, "sensor", "out", "detections per frame"),
     row("perception", "objects", m.ObjectTracks, "event", "out", "object memory (2 Hz)"),
+    row("perception", "seen", m.SeenGrid, "event", "out", "floor and tables seen (1 Hz)"),
     # behavior
     row("behavior", "progress", m.TaskProgress, "event", "out", "task step + record (1 Hz)"),
 )

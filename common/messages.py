@@ -70,6 +70,9 @@ __all__ = [
     "Message",
     "MessageError",
     "ObjectTracks",
+    "SEEN_FLOOR",
+    "SEEN_TABLE",
+    "SeenGrid",
     "Odometry",
     "Payload",
     "PlaceGoal",
@@ -795,6 +798,42 @@ class ObjectTracks(Message):
             self, "ObjectTracks", n, "ids", "centroids", "extents", "confidences",
             "observations", "last_seen", "confirmed", "map_centroids",
         )  # fmt: skip
+
+
+SEEN_FLOOR = 1  # SeenGrid bit: the floor was seen in the cell
+SEEN_TABLE = 2  # SeenGrid bit: a table top was seen in the cell
+
+
+@message("qm.SeenGrid", (1, 0))
+class SeenGrid(Message):
+    """Where perception's cameras have seen the floor (bit 1 of ``cells``) and table tops
+    (bit 2), within the range its detector finds objects reliably, in the ``map`` frame:
+    cell (row, col) covers ``origin + resolution * (col, row)`` to ``+ resolution``."""
+
+    stamp: float
+    origin: np.ndarray = array("f8", (2,), default=[0.0, 0.0])
+    resolution: float = 0.1
+    cells: np.ndarray = array("u1", (None, None), max_elements=4_000_000,
+                              default=np.zeros((0, 0), np.uint8))  # fmt: skip
+
+    def _check(self) -> None:
+        if not (math.isfinite(self.resolution) and 0.01 <= self.resolution <= 1.0):
+            raise MessageError(f"SeenGrid.resolution must be in [0.01, 1] m, got {self.resolution}")
+        if self.cells.size and int(self.cells.max()) > SEEN_FLOOR | SEEN_TABLE:
+            raise MessageError("SeenGrid.cells hold bits 1 (floor) and 2 (table top) only")
+
+    def seen(self, xy: np.ndarray, bit: int) -> np.ndarray:
+        """Whether each map point (N, 2) lies in a cell with ``bit`` (``SEEN_FLOOR``,
+        ``SEEN_TABLE``) set; points off the grid are unseen."""
+        q = np.asarray(xy, dtype=float).reshape(-1, 2)
+        r = float(self.resolution)
+        col = np.floor((q[:, 0] - self.origin[0]) / r + 1e-9).astype(np.int64)
+        row = np.floor((q[:, 1] - self.origin[1]) / r + 1e-9).astype(np.int64)
+        h, w = self.cells.shape if self.cells.ndim == 2 else (0, 0)
+        ok = (row >= 0) & (row < h) & (col >= 0) & (col < w)
+        out = np.zeros(len(q), bool)
+        out[ok] = (self.cells[row[ok], col[ok]] & bit) > 0
+        return out
 
 
 @message("qm.GraspRequest", (1, 0))

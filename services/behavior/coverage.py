@@ -17,6 +17,8 @@ The stand pose comes first; then, greedily, the candidate that sees most of what
 yet seen (points ``sample`` m apart over the zone) until no candidate adds anything, and
 the chosen ones are visited nearest the stand first. The robot thus walks into floor it
 has already looked at (and cleared: the task picks up what it finds before it moves on).
+A viewpoint whose points (:func:`view_samples`) perception's cameras have all but shown
+already, on the way or from other zones, is skipped by the task.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from typing import Literal
 
 from quadmanip.services.behavior.frames import Pose2, wrap
 
-__all__ = ["SearchConfig", "sees", "zone_viewpoints"]
+__all__ = ["SearchConfig", "sees", "view_samples", "zone_viewpoints"]
 
 
 @dataclass(frozen=True)
@@ -120,3 +122,10 @@ def zone_viewpoints(
         todo = [p for p in todo if not sees(cands[best][2], p, cfg)]
     chosen.sort(key=lambda v: (v[0], v[1]))
     return [v[2] for v in chosen]
+
+
+def view_samples(
+    viewpoint: Pose2, centre: tuple[float, float], size: tuple[float, float], cfg: SearchConfig
+) -> list[tuple[float, float]]:
+    """The zone's points (``sample`` m apart) the camera's band from ``viewpoint`` holds."""
+    return [p for p in _samples(centre, size, cfg.sample) if sees(viewpoint, p, cfg)]

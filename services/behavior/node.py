@@ -315,6 +315,13 @@ class BusRobot:
             if float(tracks.last_seen[i]) >= self.objects_since
         ]
 
+    def seen(self, points: Sequence[tuple[float, float]], table: bool) -> list[bool] | None:
+        grid = self.node.seen_grid.get()
+        if grid is None:
+            return None
+        bit = m.SEEN_TABLE if table else m.SEEN_FLOOR
+        return [bool(v) for v in grid.seen(np.asarray(points, float).reshape(-1, 2), bit)]
+
     def holding(self) -> bool | None:
         since = -math.inf
         if self.watch.outages().get("manipulation", 0) > 0:
@@ -545,6 +552,7 @@ class BehaviorNode(Service):
     inputs = (
         Input("navigation/pose", latest_only=True, doc="map pose + map->odom"),
         Input("perception/objects", latest_only=True, doc="the object memory"),
+        Input("perception/seen", latest_only=True, doc="floor and table tops seen"),
         Input("locomotion/odometry", latest_only=True, doc="base in odom: the body frame"),
         Input("locomotion/payload", latest_only=True, doc="what the gripper holds"),
         Input("locomotion/health", latest_only=True, doc="standing? tripped?"),
@@ -571,6 +579,7 @@ class BehaviorNode(Service):
             raise ValueError(f"behavior config: {'; '.join(problems)}")
         self.map_pose = self.latest("navigation/pose")
         self.tracks = self.latest("perception/objects")
+        self.seen_grid = self.latest("perception/seen")
         self.odometry = self.latest("locomotion/odometry")
         self.payload = self.latest("locomotion/payload")
         self.health = self.latest("locomotion/health")
@@ -730,6 +739,7 @@ class BehaviorNode(Service):
             placed=end.placed,
             given_up=end.given_up,
             drawers=list(end.drawers_opened),
+            views_skipped=task.views_skipped,
             seconds=round(end.elapsed, 1),
         )
         return end

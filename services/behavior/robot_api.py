@@ -14,7 +14,7 @@ again: :meth:`RobotApi.wait_for_services`, :meth:`RobotApi.stand_up`,
 
 from __future__ import annotations
 
-from collections.abc import Collection, Mapping
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -91,6 +91,12 @@ class RobotApi(Protocol):
 
     def objects(self) -> list[SeenObject]:
         """Perception's object memory, map frame."""
+        ...
+
+    def seen(self, points: Sequence[tuple[float, float]], table: bool) -> list[bool] | None:
+        """Whether perception's cameras have shown each map point's cell of floor (of a
+        table top when ``table``) within the range its detector finds objects; None when
+        perception has said nothing of it."""
         ...
 
     def holding(self) -> bool | None:

@@ -9,6 +9,7 @@ from quadmanip.services.perception.frames import FrameConfig
 from quadmanip.services.perception.grasp_pose import GraspConfig
 from quadmanip.services.perception.handle_locator import HandleConfig
 from quadmanip.services.perception.object_memory import MemoryConfig
+from quadmanip.services.perception.seen_area import SeenConfig
 
 __all__ = ["NodeConfig", "PerceptionConfig"]
 
@@ -68,3 +69,4 @@ class PerceptionConfig:
     grasp: GraspConfig = field(default_factory=GraspConfig)
     handle: HandleConfig = field(default_factory=HandleConfig)
     memory: MemoryConfig = field(default_factory=MemoryConfig)
+    seen: SeenConfig = field(default_factory=SeenConfig)

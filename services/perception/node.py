@@ -67,6 +67,7 @@ from quadmanip.services.perception.object_memory import (
     planar_pose_matrix,
 )
 from quadmanip.services.perception.rejections import save_rejection
+from quadmanip.services.perception.seen_area import SeenArea
 
 __all__ = ["PerceptionNode", "main"]
 
@@ -104,6 +105,7 @@ class PerceptionNode(Service):
     outputs = (
         Output("perception/detections", doc="detections per frame"),
         Output("perception/objects", doc="object memory"),
+        Output("perception/seen", doc="floor and table tops seen (map frame)"),
     )
     actions = ("estimate_grasp", "locate_handle")
     loop_period = 0.1
@@ -117,6 +119,9 @@ class PerceptionNode(Service):
         if unknown:
             raise ValueError(f"detector classes not in the object catalogue: {unknown}")
         self.memory = ObjectMemory(cfg.memory)
+        self.seen = SeenArea(cfg.seen)
+        self.t_seen = -math.inf
+        self.t_frame = 0.0  # stamp of the newest frame marked in the seen grid
         self.lock = threading.Lock()
         self.cond = threading.Condition(self.lock)
         self.pending: dict[str, m.RgbdImage] = {}
@@ -143,6 +148,7 @@ class PerceptionNode(Service):
         self.map_anchor = MapAnchor()
         self.pub_det = self.publisher("perception/detections")
         self.pub_obj = self.publisher("perception/objects")
+        self.pub_seen = self.publisher("perception/seen")
         for cam, topic in CAMERA_TOPICS.items():
             self.subscribe(topic, lambda img, cam=cam: self._on_frame(cam, img))
         self.subscribe("locomotion/odometry", self._on_odom)
@@ -293,6 +299,7 @@ class PerceptionNode(Service):
                 before = {t.id for t in self.memory.tracks()}
                 self.memory.update(obs, view, img.stamp)
                 new = [t for t in self.memory.tracks() if t.id not in before]
+            self._mark_seen(cam, img, cam_p, cam_q, np.asarray(base[0])[:2])
             for t in new:  # where a track comes from, for whoever reads a trial's log
                 self.log.info("track confirmed", id=t.id, cls=t.class_name, camera=cam,
                               odom=f"[{t.centroid[0]:.2f}, {t.centroid[1]:.2f}, "
@@ -340,6 +347,11 @@ class PerceptionNode(Service):
         if now - self.t_objects >= self.config.node.objects_period:
             self._publish_objects()
             self.t_objects = now
+        if now - self.t_seen >= self.config.seen.period:
+            with self.lock:
+                grid = self.seen.snapshot(self.t_frame)
+            self.pub_seen.publish(grid)
+            self.t_seen = now
 
     def _follow_the_map(self) -> None:
         """The tracks follow navigation's map->odom correction (``MapAnchor``). Caller
@@ -349,6 +361,21 @@ class PerceptionNode(Service):
         move = self.map_anchor.step(mp.map_to_odom if ok and mp is not None else None)
         if move is not None:
             self.memory.move_frame(move)
+
+    def _mark_seen(
+        self, cam: str, img: m.RgbdImage, cam_p: np.ndarray, cam_q: np.ndarray, base_xy: np.ndarray
+    ) -> None:
+        """The floor and table top this remembered frame shows, into the seen grid (map
+        frame: only while navigation publishes where the map lies)."""
+        mp = self.map_pose.get()
+        if mp is None or mp.status == "lost":
+            return
+        cfg = self.config.seen
+        reach = cfg.front_range if cam == FRONT_CAMERA else cfg.gripper_range
+        se2 = planar_pose_matrix(*(float(v) for v in mp.map_to_odom))
+        with self.lock:
+            self.seen.mark_frame(img.depth, img.K, cam_p, cam_q, reach, se2, base_xy)
+            self.t_frame = max(self.t_frame, float(img.stamp))
 
     def _publish_objects(self) -> None:
         mp = self.map_pose.get()

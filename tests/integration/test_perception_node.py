@@ -179,6 +179,16 @@ def test_detects_remembers_and_grasps_then_survives_bad_input(
         _, map1, _ = track_of(objects.get(), tid)
         np.testing.assert_allclose(map1, map0, atol=1e-6)
         robot.cameras_on = True
+        # 5b. localised, the frames mark the floor they show in the map-frame seen grid:
+        # around the object (the probe view shows the floor about it), and no table top
+        seen = bus.latest("perception/seen")
+        obj_map = map1[:2]
+        ring = obj_map + 0.15 * np.array([[1, 0], [-1, 0], [0, 1], [0, -1], [0.7, 0.7]])
+        _wait(lambda: (g := seen.get()) is not None and g.seen(ring, m.SEEN_FLOOR).sum() >= 3,
+              15.0, "no seen floor about the object", proc)  # fmt: skip
+        g = seen.get()
+        assert not g.seen(ring, m.SEEN_TABLE).any()
+        assert not g.seen(obj_map + np.array([[5.0, 5.0]]), m.SEEN_FLOOR).any()
         # 6. bad frames: a reason, no crash
         bad = _frame(view)
         for frame, why in (

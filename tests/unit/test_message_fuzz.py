@@ -366,6 +366,15 @@ STRATEGIES: dict[type[Message], st.SearchStrategy] = {
     m.NavigationResult: auto(m.NavigationResult),
     m.Detections: rows_of(m.Detections, ("labels",)),
     m.ObjectTracks: rows_of(m.ObjectTracks, ("labels",)),
+    m.SeenGrid: auto(
+        m.SeenGrid,
+        resolution=st.floats(0.01, 1.0),
+        cells=hnp.arrays(
+            np.uint8,
+            hnp.array_shapes(min_dims=2, max_dims=2, max_side=6),
+            elements=st.integers(0, 3),
+        ),
+    ),
     m.GraspRequest: auto(m.GraspRequest, max_distance=nonneg),
     m.HandleRequest: auto(m.HandleRequest),
     m.TaskProgress: task_progress(),

@@ -1,0 +1,88 @@
+"""The seen grid: which cells of floor and table top the cameras have shown."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from quadmanip.services.perception.seen_area import FLOOR, TABLE, SeenArea, SeenConfig
+
+pytestmark = pytest.mark.unit
+
+
+def test_floor_and_table_returns_mark_their_cells_and_nothing_else():
+    area = SeenArea(SeenConfig(resolution=0.1))
+    pts = np.array(
+        [
+            [1.05, 2.05, 0.01],  # floor
+            [3.05, -0.95, 0.42],  # a table top
+            [5.0, 5.0, 0.20],  # an object's side, a chair: neither
+            [np.nan, 0.0, 0.0],  # a bad return
+        ]
+    )
+    assert area.mark(pts) == 2
+    q = np.array([[1.01, 2.09], [1.11, 2.05], [3.0, -0.99], [5.0, 5.0], [-40.0, 0.0]])
+    assert area.snapshot(0.0).seen(q, FLOOR).tolist() == [True, False, False, False, False]
+    assert area.snapshot(0.0).seen(q, TABLE).tolist() == [False, False, True, False, False]
+    # the same cell again adds nothing; a new bit in a known cell counts
+    assert area.mark(pts) == 0
+    assert area.mark(np.array([[1.05, 2.05, 0.45]])) == 1
+    assert area.snapshot(0.0).seen(q[:1], TABLE).tolist() == [True]
+
+
+def test_the_grid_grows_to_hold_every_mark_and_keeps_the_old_ones():
+    area = SeenArea(SeenConfig(resolution=0.1))
+    area.mark(np.array([[0.05, 0.05, 0.0]]))
+    shape0 = area.cells.shape
+    area.mark(np.array([[9.95, -3.05, 0.0], [-2.05, 4.05, 0.0]]))
+    assert area.cells.shape[0] > shape0[0] and area.cells.shape[1] > shape0[1]
+    q = np.array([[0.05, 0.05], [9.95, -3.05], [-2.05, 4.05]])
+    assert area.snapshot(0.0).seen(q, FLOOR).all()
+    assert int(np.count_nonzero(area.cells)) == 3
+    # the origin is the corner of cell (0, 0): a mark's cell is where the origin says
+    r, c = np.argwhere(area.cells)[0]
+    x0, y0 = area.origin
+    assert area.snapshot(0.0).seen(np.array([[x0 + (c + 0.5) * 0.1, y0 + (r + 0.5) * 0.1]]), FLOOR)[
+        0
+    ]
+
+
+def test_bad_configs_are_refused():
+    with pytest.raises(ValueError):
+        SeenConfig(resolution=0.0)
+    with pytest.raises(ValueError):
+        SeenConfig(stride=0)
+    with pytest.raises(ValueError):
+        SeenConfig(table_z=(0.6, 0.3))
+
+
+def _floor_depth(height: float, tilt: float, w: int = 320, h: int = 240, f: float = 250.0):
+    """A pinhole camera ``height`` m over a flat floor, looking along +x and ``tilt`` rad
+    down: its depth image (0 where a ray misses the floor), K and pose (quaternion)."""
+    from quadmanip.common.rotations import mat_to_quat
+
+    K = np.array([[f, 0.0, w / 2], [0.0, f, h / 2], [0.0, 0.0, 1.0]])
+    c, s = np.cos(tilt), np.sin(tilt)
+    x_opt, z_opt = np.array([0.0, -1.0, 0.0]), np.array([c, 0.0, -s])
+    R = np.column_stack([x_opt, np.cross(z_opt, x_opt), z_opt])
+    v, u = np.mgrid[0:h, 0:w]
+    rays = np.stack([(u - w / 2) / f, (v - h / 2) / f, np.ones((h, w))], axis=-1) @ R.T
+    down = rays[..., 2]
+    depth = np.where(down < -1e-6, height / np.maximum(-down, 1e-6), 0.0).astype(np.float32)
+    return depth, K, np.array([0.0, 0.0, height]), mat_to_quat(R)
+
+
+def test_a_frame_marks_the_floor_it_shows_within_reach_in_the_grid_frame():
+    depth, K, pos, quat = _floor_depth(0.5, 0.5)
+    area = SeenArea(SeenConfig(resolution=0.1, stride=2))
+    # the grid's frame: odom turned a quarter turn and moved (map->odom's matrix)
+    to_grid = np.array([[0.0, -1.0, 3.0], [1.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
+    assert area.mark_frame(depth, K, pos, quat, 2.0, to_grid, np.array([-0.3, 0.0])) > 20
+    # odom points ahead on the camera's axis (x) -> grid (3 - y, 1 + x)
+    ahead = np.array([[1.0, 0.0], [1.6, 0.0]])
+    far = np.array([[2.6, 0.0]])  # beyond the reach along the optical axis
+    behind = np.array([[-0.5, 0.0]])
+    g = lambda p: p @ to_grid[:2, :2].T + to_grid[:2, 2]  # noqa: E731
+    assert area.snapshot(0.0).seen(g(ahead), FLOOR).all()
+    assert not area.snapshot(0.0).seen(g(far), FLOOR).any()
+    assert not area.snapshot(0.0).seen(g(behind), FLOOR).any()
+    assert not area.snapshot(0.0).seen(g(ahead), TABLE).any()
