@@ -1811,9 +1811,21 @@ class TidyTask:
         assert rec is not None and probe is not None and plan is not None
         out = self.robot.grasp(plan)
         if out.ok:
+            # every track of its class where it lay is this object: the record may name a
+            # track perception dropped while the probe found the object by its class, and
+            # the newer one left where it lay became a target after the place (paper-5,
+            # 2026-12-06: the baseball's, walked to and probed for 20 s)
+            r = self.cfg.same_object_radius
+            twins = [
+                o.track_id
+                for o in self.robot.objects()
+                if o.label == rec.label
+                and min(_dist(o.position, rec.position), _dist(o.position, plan.position_map)) < r
+            ]
             with self._lock:
                 rec.grasped = True
                 self.done_tracks.add(rec.track_id)  # its track now follows the gripper
+                self.done_tracks.update(twins)
             self.picked_from = rec.position
             self.posture = ""
             return Step.CARRY

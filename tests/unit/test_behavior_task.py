@@ -1025,6 +1025,33 @@ def test_an_object_the_probe_names_otherwise_goes_where_that_class_goes() -> Non
         assert _record(report, t.label).placed
 
 
+def test_a_second_track_of_the_grasped_object_where_it_lay_is_never_a_target() -> None:
+    """paper-5 (2026-12-06): the baseball's record named a track perception had dropped
+    (estimate: "unknown track 280"), the probe by class grasped the ball all the same,
+    and the track it had been seen as since (#349, the same spot) stayed in the memory:
+    after the place it was a new object, walked to and probed for 20 s."""
+    things = _things()
+    can = next(t for t in things if t.label == "tomato_soup_can")
+    house = FakeHouse(things)
+    house.forgotten.add(can.track_id)
+    real_grasp = house.grasp
+
+    def grasp_and_a_twin_confirmed(plan):
+        out = real_grasp(plan)
+        if out.ok and house.held is can:  # the same object's newer track, where it lay
+            house.memory[77] = SeenObject(77, can.label, can_at)
+        return out
+
+    can_at = can.position
+    house.grasp = grasp_and_a_twin_confirmed
+    report = _task(house).run()
+    assert _record(report, "tomato_soup_can").placed
+    assert all(r.track_id != 77 for r in report.objects)
+    assert not any(a == ("tomato_soup_can", 77) for w, a in house.calls if w == "estimate_grasp")
+    for t in things:
+        assert _record(report, t.label).placed
+
+
 def test_a_table_object_not_level_from_above_is_probed_from_the_side() -> None:
     # Section 4.3: when the surface the camera above sees is not level, perception asks
     # for a horizontal probe; asking from above again got the same answer four times
