@@ -5,10 +5,10 @@ front camera sees most of a room from its first views: in the tidy-up trials of
 2026-12-05/06 the robot walked the rest of the viewpoints after the last object was
 placed for 18-144 s (median 46 s) of each trial, finding nothing. Perception knows what
 its cameras have seen. Each frame it remembers (the detector ran on it in a search or
-probing posture) marks the cells of its depth returns (every ``stride``-th pixel)
-within ``max_range`` of the camera that lie on the floor (below ``floor_max_z``) or on
-a table top (within ``table_z``); the task skips a viewpoint whose view the grid shows
-seen. The range is where the detector finds the small objects reliably, not the depth
+probing posture) counts a view of the cells of its depth returns (every ``stride``-th pixel)
+within range of the camera that lie on the floor (below ``floor_max_z``) or on a table
+top (within ``table_z``); a cell shown by ``min_views`` frames counts seen, and the task
+skips a viewpoint whose view the grid shows seen. The range is where the detector finds the small objects reliably, not the depth
 camera's reach: a cell counts only where an object in it would have been found.
 
 The grid lies in the map frame (the node marks frames only while navigation publishes
@@ -43,6 +43,9 @@ class SeenConfig:
     self_radius: float = 0.35  # m about the base (horizontal): the robot's own trunk
     floor_max_z: float = 0.05  # m: returns lower than this lie on the floor
     table_z: tuple[float, float] = (0.3, 0.6)  # m: returns within lie on a table top
+    # frames that must show a cell before it counts seen: the memory confirms a track
+    # after 3 detections, so a cell glimpsed once while walking past is not enough
+    min_views: int = 3
     period: float = 1.0  # s between publications
 
     def __post_init__(self) -> None:
@@ -50,6 +53,8 @@ class SeenConfig:
             raise ValueError(f"SeenConfig.resolution must be in [0.01, 1] m: {self.resolution}")
         if self.stride < 1:
             raise ValueError(f"SeenConfig.stride must be >= 1: {self.stride}")
+        if not 1 <= self.min_views <= 255:
+            raise ValueError(f"SeenConfig.min_views must be in [1, 255]: {self.min_views}")
         if not self.table_z[0] < self.table_z[1]:
             raise ValueError(f"SeenConfig.table_z must be (low, high): {self.table_z}")
 
@@ -59,7 +64,7 @@ class SeenArea:
 
     def __init__(self, config: SeenConfig | None = None) -> None:
         self.config = config or SeenConfig()
-        self.cells = np.zeros((0, 0), np.uint8)
+        self.views = np.zeros((2, 0, 0), np.uint8)  # frames that showed each cell: floor, table
         self.row0 = 0  # cell index (floor(y / resolution)) of row 0
         self.col0 = 0  # ... of column 0
 
@@ -69,26 +74,38 @@ class SeenArea:
         r = self.config.resolution
         return self.col0 * r, self.row0 * r
 
+    @property
+    def cells(self) -> np.ndarray:
+        """The ``FLOOR`` / ``TABLE`` bits of the cells shown by ``min_views`` frames."""
+        seen = self.views >= self.config.min_views
+        return (seen[0] * FLOOR | seen[1] * TABLE).astype(np.uint8)
+
     def mark(self, points: np.ndarray) -> int:
-        """Mark the cells of ``points`` (N, 3; the grid's frame, z up from the floor) that
-        lie on the floor or a table top; returns how many cells got a new bit."""
+        """Count one frame's view of the cells of ``points`` (N, 3; the grid's frame, z up
+        from the floor) that lie on the floor or a table top; returns how many cells this
+        frame made seen (``min_views`` reached)."""
         cfg = self.config
         p = np.asarray(points, dtype=float).reshape(-1, 3)
         p = p[np.all(np.isfinite(p), axis=1)]
         z = p[:, 2]
-        bits = np.where(z < cfg.floor_max_z, FLOOR, 0) | np.where(
-            (z >= cfg.table_z[0]) & (z <= cfg.table_z[1]), TABLE, 0
-        )
-        keep = bits > 0
+        levels = (z < cfg.floor_max_z, (z >= cfg.table_z[0]) & (z <= cfg.table_z[1]))
+        keep = levels[0] | levels[1]
         if not keep.any():
             return 0
-        col = np.floor(p[keep, 0] / cfg.resolution).astype(np.int64)
-        row = np.floor(p[keep, 1] / cfg.resolution).astype(np.int64)
-        self._grow(int(row.min()), int(row.max()), int(col.min()), int(col.max()))
-        r, c, b = row - self.row0, col - self.col0, bits[keep].astype(np.uint8)
-        before = self.cells[r, c].copy()
-        np.bitwise_or.at(self.cells, (r, c), b)
-        return int(np.count_nonzero(self.cells[r, c] != before))
+        col = np.floor(p[:, 0] / cfg.resolution).astype(np.int64)
+        row = np.floor(p[:, 1] / cfg.resolution).astype(np.int64)
+        self._grow(int(row[keep].min()), int(row[keep].max()), int(col[keep].min()),
+                   int(col[keep].max()))  # fmt: skip
+        made = 0
+        for k, on in enumerate(levels):
+            if not on.any():
+                continue
+            # each cell once per frame
+            cells = np.unique(np.stack([row[on] - self.row0, col[on] - self.col0]), axis=1)
+            v = self.views[k][cells[0], cells[1]]
+            made += int(np.count_nonzero(v == cfg.min_views - 1))
+            self.views[k][cells[0], cells[1]] = np.minimum(v.astype(np.int32) + 1, 255)
+        return made
 
     def mark_frame(
         self,
@@ -124,7 +141,7 @@ class SeenArea:
     def _grow(self, r_lo: int, r_hi: int, c_lo: int, c_hi: int) -> None:
         """Make the grid hold rows r_lo..r_hi and columns c_lo..c_hi (cell indices),
         with room to spare so a walk does not reallocate it every frame."""
-        h, w = self.cells.shape
+        _, h, w = self.views.shape
         if h and w and r_lo >= self.row0 and c_lo >= self.col0:
             if r_hi < self.row0 + h and c_hi < self.col0 + w:
                 return
@@ -133,9 +150,8 @@ class SeenArea:
             r_lo, c_lo = min(r_lo, self.row0), min(c_lo, self.col0)
             r_hi, c_hi = max(r_hi, self.row0 + h - 1), max(c_hi, self.col0 + w - 1)
         nr0, nc0 = r_lo - pad, c_lo - pad
-        grid = np.zeros((r_hi - r_lo + 1 + 2 * pad, c_hi - c_lo + 1 + 2 * pad), np.uint8)
+        views = np.zeros((2, r_hi - r_lo + 1 + 2 * pad, c_hi - c_lo + 1 + 2 * pad), np.uint8)
         if h and w:
-            grid[self.row0 - nr0 : self.row0 - nr0 + h, self.col0 - nc0 : self.col0 - nc0 + w] = (
-                self.cells
-            )
-        self.cells, self.row0, self.col0 = grid, nr0, nc0
+            r, c = self.row0 - nr0, self.col0 - nc0
+            views[:, r : r + h, c : c + w] = self.views
+        self.views, self.row0, self.col0 = views, nr0, nc0

@@ -10,7 +10,7 @@ pytestmark = pytest.mark.unit
 
 
 def test_floor_and_table_returns_mark_their_cells_and_nothing_else():
-    area = SeenArea(SeenConfig(resolution=0.1))
+    area = SeenArea(SeenConfig(resolution=0.1, min_views=1))
     pts = np.array(
         [
             [1.05, 2.05, 0.01],  # floor
@@ -23,14 +23,26 @@ def test_floor_and_table_returns_mark_their_cells_and_nothing_else():
     q = np.array([[1.01, 2.09], [1.11, 2.05], [3.0, -0.99], [5.0, 5.0], [-40.0, 0.0]])
     assert area.snapshot(0.0).seen(q, FLOOR).tolist() == [True, False, False, False, False]
     assert area.snapshot(0.0).seen(q, TABLE).tolist() == [False, False, True, False, False]
-    # the same cell again adds nothing; a new bit in a known cell counts
+    # seen again adds nothing; a table top over a seen floor cell counts
     assert area.mark(pts) == 0
     assert area.mark(np.array([[1.05, 2.05, 0.45]])) == 1
     assert area.snapshot(0.0).seen(q[:1], TABLE).tolist() == [True]
 
 
+def test_a_cell_counts_seen_after_min_views_frames_each_counted_once():
+    # walking past, a cell in one frame: an object there would not have been confirmed
+    area = SeenArea(SeenConfig(resolution=0.1, min_views=3))
+    q = np.array([[1.05, 2.05]])
+    frame = np.array([[1.05, 2.05, 0.0], [1.06, 2.04, 0.0], [1.04, 2.06, 0.01]])
+    assert area.mark(frame) == 0  # three returns in one frame are one view
+    assert area.mark(frame) == 0
+    assert not area.snapshot(0.0).seen(q, FLOOR)[0]
+    assert area.mark(frame) == 1
+    assert area.snapshot(0.0).seen(q, FLOOR)[0]
+
+
 def test_the_grid_grows_to_hold_every_mark_and_keeps_the_old_ones():
-    area = SeenArea(SeenConfig(resolution=0.1))
+    area = SeenArea(SeenConfig(resolution=0.1, min_views=1))
     area.mark(np.array([[0.05, 0.05, 0.0]]))
     shape0 = area.cells.shape
     area.mark(np.array([[9.95, -3.05, 0.0], [-2.05, 4.05, 0.0]]))
@@ -53,6 +65,8 @@ def test_bad_configs_are_refused():
         SeenConfig(stride=0)
     with pytest.raises(ValueError):
         SeenConfig(table_z=(0.6, 0.3))
+    with pytest.raises(ValueError):
+        SeenConfig(min_views=0)
 
 
 def _floor_depth(height: float, tilt: float, w: int = 320, h: int = 240, f: float = 250.0):
@@ -73,7 +87,7 @@ def _floor_depth(height: float, tilt: float, w: int = 320, h: int = 240, f: floa
 
 def test_a_frame_marks_the_floor_it_shows_within_reach_in_the_grid_frame():
     depth, K, pos, quat = _floor_depth(0.5, 0.5)
-    area = SeenArea(SeenConfig(resolution=0.1, stride=2))
+    area = SeenArea(SeenConfig(resolution=0.1, stride=2, min_views=1))
     # the grid's frame: odom turned a quarter turn and moved (map->odom's matrix)
     to_grid = np.array([[0.0, -1.0, 3.0], [1.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
     assert area.mark_frame(depth, K, pos, quat, 2.0, to_grid, np.array([-0.3, 0.0])) > 20
