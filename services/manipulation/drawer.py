@@ -173,13 +173,16 @@ class DrawerPrimitive(Primitive):
     def script(self) -> Script:
         """Approach, grip, pull (arm, then body), release, back off."""
         plan, dc = self.plan, self.cfg.drawer
-        self.stage("drawer: moveCOM, open gripper", 0.05)
+        self.stage("drawer: moveCOM, open gripper, in front of the handle", 0.05)
         yield []
-        yield from self.open_gripper(dc.handle_width + self.cfg.grasp.open_margin)
+        # as the grasp does: the fingers open as the arm goes in front of the handle, both
+        # while the trunk settles into its offsets (one after another: 1.5-2 s a drawer)
+        ready = self.together(
+            self.open_gripper(dc.handle_width + self.cfg.grasp.open_margin),
+            self.move_joints(np.asarray(plan.q_ready)),
+        )
         b = plan.body
-        yield from self.move_body(b.x_offset, b.y_offset, b.z_offset)
-        self.stage("drawer: in front of the handle", 0.2)
-        yield from self.move_joints(np.asarray(plan.q_ready))
+        yield from self.move_body(b.x_offset, b.y_offset, b.z_offset, during=ready)
         self.stage("drawer: reach the handle", 0.35)
         yield from self.line_to(plan.grip)
         # the handle is fixed in the world: follow the trunk's unplanned drift (odometry)
