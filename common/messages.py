@@ -808,31 +808,45 @@ SEEN_TABLE = 2  # SeenGrid bit: a table top was seen in the cell
 class SeenGrid(Message):
     """Where perception's cameras have seen the floor (bit 1 of ``cells``) and table tops
     (bit 2), within the range its detector finds objects reliably, in the ``map`` frame:
-    cell (row, col) covers ``origin + resolution * (col, row)`` to ``+ resolution``."""
+    cell (row, col) covers ``origin + resolution * (col, row)`` to ``+ resolution``.
+    ``floor_at`` and ``table_at`` hold the stamp of each cell's latest view (0: never), so
+    a reader can ask what was seen since something may have moved (an object dropped)."""
 
     stamp: float
     origin: np.ndarray = array("f8", (2,), default=[0.0, 0.0])
     resolution: float = 0.1
     cells: np.ndarray = array("u1", (None, None), max_elements=4_000_000,
                               default=np.zeros((0, 0), np.uint8))  # fmt: skip
+    floor_at: np.ndarray = array("f4", (None, None), nonneg=True, max_elements=4_000_000,
+                                 default=np.zeros((0, 0), np.float32))  # fmt: skip
+    table_at: np.ndarray = array("f4", (None, None), nonneg=True, max_elements=4_000_000,
+                                 default=np.zeros((0, 0), np.float32))  # fmt: skip
 
     def _check(self) -> None:
         if not (math.isfinite(self.resolution) and 0.01 <= self.resolution <= 1.0):
             raise MessageError(f"SeenGrid.resolution must be in [0.01, 1] m, got {self.resolution}")
         if self.cells.size and int(self.cells.max()) > SEEN_FLOOR | SEEN_TABLE:
             raise MessageError("SeenGrid.cells hold bits 1 (floor) and 2 (table top) only")
+        if not (self.floor_at.shape == self.table_at.shape == self.cells.shape):
+            raise MessageError(
+                f"SeenGrid: cells {self.cells.shape}, floor_at {self.floor_at.shape} and "
+                f"table_at {self.table_at.shape} must have one shape"
+            )
 
-    def seen(self, xy: np.ndarray, bit: int) -> np.ndarray:
+    def seen(self, xy: np.ndarray, bit: int, since: float = -math.inf) -> np.ndarray:
         """Whether each map point (N, 2) lies in a cell with ``bit`` (``SEEN_FLOOR``,
-        ``SEEN_TABLE``) set; points off the grid are unseen."""
+        ``SEEN_TABLE``) set and viewed at or after ``since``; points off the grid are
+        unseen."""
         q = np.asarray(xy, dtype=float).reshape(-1, 2)
         r = float(self.resolution)
         col = np.floor((q[:, 0] - self.origin[0]) / r + 1e-9).astype(np.int64)
         row = np.floor((q[:, 1] - self.origin[1]) / r + 1e-9).astype(np.int64)
         h, w = self.cells.shape if self.cells.ndim == 2 else (0, 0)
         ok = (row >= 0) & (row < h) & (col >= 0) & (col < w)
+        at = self.table_at if bit == SEEN_TABLE else self.floor_at
         out = np.zeros(len(q), bool)
-        out[ok] = (self.cells[row[ok], col[ok]] & bit) > 0
+        rr, cc = row[ok], col[ok]
+        out[ok] = ((self.cells[rr, cc] & bit) > 0) & (at[rr, cc] >= since)
         return out
 
 

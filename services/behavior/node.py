@@ -315,12 +315,15 @@ class BusRobot:
             if float(tracks.last_seen[i]) >= self.objects_since
         ]
 
-    def seen(self, points: Sequence[tuple[float, float]], table: bool) -> list[bool] | None:
+    def seen(
+        self, points: Sequence[tuple[float, float]], table: bool, since: float = -math.inf
+    ) -> list[bool] | None:
         grid = self.node.seen_grid.get()
         if grid is None:
             return None
         bit = m.SEEN_TABLE if table else m.SEEN_FLOOR
-        return [bool(v) for v in grid.seen(np.asarray(points, float).reshape(-1, 2), bit)]
+        xy = np.asarray(points, float).reshape(-1, 2)
+        return [bool(v) for v in grid.seen(xy, bit, since)]
 
     def holding(self) -> bool | None:
         since = -math.inf

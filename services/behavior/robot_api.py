@@ -14,6 +14,7 @@ again: :meth:`RobotApi.wait_for_services`, :meth:`RobotApi.stand_up`,
 
 from __future__ import annotations
 
+import math
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Protocol
@@ -93,10 +94,13 @@ class RobotApi(Protocol):
         """Perception's object memory, map frame."""
         ...
 
-    def seen(self, points: Sequence[tuple[float, float]], table: bool) -> list[bool] | None:
+    def seen(
+        self, points: Sequence[tuple[float, float]], table: bool, since: float = -math.inf
+    ) -> list[bool] | None:
         """Whether perception's cameras have shown each map point's cell of floor (of a
-        table top when ``table``) within the range its detector finds objects; None when
-        perception has said nothing of it."""
+        table top when ``table``) within the range its detector finds objects, and looked
+        at it again at or after robot time ``since``; None when perception has said
+        nothing of it."""
         ...
 
     def holding(self) -> bool | None:

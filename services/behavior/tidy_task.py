@@ -424,8 +424,10 @@ class _GuardedRobot:
     def objects(self) -> list[SeenObject]:
         return self._r.objects()
 
-    def seen(self, points: Sequence[tuple[float, float]], table: bool) -> list[bool] | None:
-        return self._r.seen(points, table)
+    def seen(
+        self, points: Sequence[tuple[float, float]], table: bool, since: float = -math.inf
+    ) -> list[bool] | None:
+        return self._r.seen(points, table, since)
 
     def holding(self) -> bool | None:
         return self._r.holding()
@@ -612,6 +614,9 @@ class TidyTask:
         self.stale: dict[int, Point3] = {}
         self.false_spots: list[Point3] = []  # where probes found a false detection
         self.views_skipped = 0  # viewpoints whose view the seen grid showed seen already
+        # robot time an object last fell or was set down out of place: views before it
+        # do not count for skipping a viewpoint
+        self.t_moved = -math.inf
         self.picked_from: Point3 | None = None  # where the held object was grasped
         # the object the task last let go of (placed or dropped): the one still in the
         # fingers when a grasp is refused as already_holding
@@ -788,6 +793,7 @@ class TidyTask:
         # last (paper-3, 2026-12-05: a put-down failed, and the next grasp's
         # already_holding took the coffee can placed before it for still held)
         self.last_released = None
+        self.t_moved = self.robot.now()
         for back in (0.0, self.cfg.step_back):  # once more from a step back (the arm
             pose = self.robot.pose()  # may have been stopped by furniture ahead)
             if pose is None:
@@ -1372,10 +1378,16 @@ class TidyTask:
         floors from the first views."""
         z = self.zone
         assert z is not None
+        if _synthetic(z.name):  # where a dropped object may lie: looked at, always
+            return False
         pts = view_samples(vp, (z.target[0], z.target[1]), z.size, self._zone_search())
         if not pts:
             return False
-        seen = self.robot.seen(pts, table=z.kind == "search_table")
+        # only views since the last time an object fell or was set down count: the cells
+        # seen before show nothing of where it lies now (paper-2, 2026-12-06: the spoon
+        # slipped from the fingers at the pencil case, every view of the search again was
+        # skipped as seen, and the task ended without it)
+        seen = self.robot.seen(pts, table=z.kind == "search_table", since=self.t_moved)
         if seen is None:
             return False
         if sum(seen) < self.cfg.view_seen_share * len(pts):
@@ -2034,6 +2046,7 @@ class TidyTask:
         right there (``here_picked``): then that track is the object."""
         rec = self.target
         assert rec is not None
+        self.t_moved = self.robot.now()
         with self._lock:
             rec.dropped = True
         self.last_released = rec

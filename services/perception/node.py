@@ -374,7 +374,9 @@ class PerceptionNode(Service):
         reach = cfg.front_range if cam == FRONT_CAMERA else cfg.gripper_range
         se2 = planar_pose_matrix(*(float(v) for v in mp.map_to_odom))
         with self.lock:
-            self.seen.mark_frame(img.depth, img.K, cam_p, cam_q, reach, se2, base_xy)
+            self.seen.mark_frame(
+                img.depth, img.K, cam_p, cam_q, reach, se2, base_xy, float(img.stamp)
+            )
             self.t_frame = max(self.t_frame, float(img.stamp))
 
     def _publish_objects(self) -> None:

@@ -65,6 +65,7 @@ class SeenArea:
     def __init__(self, config: SeenConfig | None = None) -> None:
         self.config = config or SeenConfig()
         self.views = np.zeros((2, 0, 0), np.uint8)  # frames that showed each cell: floor, table
+        self.last = np.zeros((2, 0, 0), np.float32)  # the stamp of each cell's latest view
         self.row0 = 0  # cell index (floor(y / resolution)) of row 0
         self.col0 = 0  # ... of column 0
 
@@ -80,10 +81,10 @@ class SeenArea:
         seen = self.views >= self.config.min_views
         return (seen[0] * FLOOR | seen[1] * TABLE).astype(np.uint8)
 
-    def mark(self, points: np.ndarray) -> int:
-        """Count one frame's view of the cells of ``points`` (N, 3; the grid's frame, z up
-        from the floor) that lie on the floor or a table top; returns how many cells this
-        frame made seen (``min_views`` reached)."""
+    def mark(self, points: np.ndarray, stamp: float = 0.0) -> int:
+        """Count one frame's view (at ``stamp``) of the cells of ``points`` (N, 3; the
+        grid's frame, z up from the floor) that lie on the floor or a table top; returns
+        how many cells this frame made seen (``min_views`` reached)."""
         cfg = self.config
         p = np.asarray(points, dtype=float).reshape(-1, 3)
         p = p[np.all(np.isfinite(p), axis=1)]
@@ -105,6 +106,7 @@ class SeenArea:
             v = self.views[k][cells[0], cells[1]]
             made += int(np.count_nonzero(v == cfg.min_views - 1))
             self.views[k][cells[0], cells[1]] = np.minimum(v.astype(np.int32) + 1, 255)
+            self.last[k][cells[0], cells[1]] = stamp
         return made
 
     def mark_frame(
@@ -116,6 +118,7 @@ class SeenArea:
         reach: float,
         to_grid: np.ndarray,
         base_xy: np.ndarray,
+        stamp: float = 0.0,
     ) -> int:
         """Mark what a depth image shows within ``reach`` (m along the optical axis): the
         camera pose (position, quaternion [w, x, y, z]) and the base's ``base_xy`` in odom,
@@ -130,13 +133,14 @@ class SeenArea:
         pts = p[~own]
         m = np.asarray(to_grid, dtype=float)
         pts[:, :2] = pts[:, :2] @ m[:2, :2].T + m[:2, 2]
-        return self.mark(pts)
+        return self.mark(pts, stamp)
 
     def snapshot(self, stamp: float) -> m.SeenGrid:
         """The grid as a message (a copy)."""
         x0, y0 = self.origin
         return m.SeenGrid(stamp=stamp, origin=[x0, y0], resolution=self.config.resolution,
-                          cells=self.cells.copy())  # fmt: skip
+                          cells=self.cells, floor_at=self.last[0].copy(),
+                          table_at=self.last[1].copy())  # fmt: skip
 
     def _grow(self, r_lo: int, r_hi: int, c_lo: int, c_hi: int) -> None:
         """Make the grid hold rows r_lo..r_hi and columns c_lo..c_hi (cell indices),
@@ -150,8 +154,10 @@ class SeenArea:
             r_lo, c_lo = min(r_lo, self.row0), min(c_lo, self.col0)
             r_hi, c_hi = max(r_hi, self.row0 + h - 1), max(c_hi, self.col0 + w - 1)
         nr0, nc0 = r_lo - pad, c_lo - pad
-        views = np.zeros((2, r_hi - r_lo + 1 + 2 * pad, c_hi - c_lo + 1 + 2 * pad), np.uint8)
+        shape = (2, r_hi - r_lo + 1 + 2 * pad, c_hi - c_lo + 1 + 2 * pad)
+        views, last = np.zeros(shape, np.uint8), np.zeros(shape, np.float32)
         if h and w:
             r, c = self.row0 - nr0, self.col0 - nc0
             views[:, r : r + h, c : c + w] = self.views
-        self.views, self.row0, self.col0 = views, nr0, nc0
+            last[:, r : r + h, c : c + w] = self.last
+        self.views, self.last, self.row0, self.col0 = views, last, nr0, nc0

@@ -162,7 +162,7 @@ class FakeHouse:
         self.turn_free_approaches = 0
         # perception's seen grid: None says nothing; a list collects (pose, table) of every
         # look the cameras made, and a point is seen where such a look would find objects
-        self.looks: list[tuple[tuple[float, float, float], bool]] | None = None
+        self.looks: list[tuple[tuple[float, float, float], bool, float]] | None = None
         self.look_range, self.look_bearing = 1.6, 0.7  # what a look shows (and finds)
         # (heading asked, heading navigation turns a turn_free stance to) near an object
         self.free_turn: tuple[float, float] | None = None
@@ -341,7 +341,7 @@ class FakeHouse:
             looks = TABLE_LOOKS if t.on_table else FLOOR_LOOKS
             seeing = "perception" not in self.dead
             if seeing and self.looks is not None and self.posture in looks:
-                self.looks.append((self.at, self.posture in TABLE_LOOKS))
+                self.looks.append((self.at, self.posture in TABLE_LOOKS, self.t))
             shown = 0.25 <= dist <= self.look_range and abs(bearing) <= self.look_bearing
             if seeing and self.posture in looks and shown:
                 if t.track_id in self.far_only and dist < 1.0:
@@ -376,12 +376,14 @@ class FakeHouse:
     def objects(self) -> list[SeenObject]:
         return list(self.memory.values())
 
-    def seen(self, points, table):
+    def seen(self, points, table, since=-math.inf):
         if self.looks is None:
             return None
 
         def shown(p):
-            for at, on_table in self.looks:
+            for at, on_table, t in self.looks:
+                if t < since:
+                    continue
                 dist, bearing = _bearing(at, (*p, 0.0))
                 near = 0.25 <= dist <= self.look_range and abs(bearing) <= self.look_bearing
                 if on_table == table and near:
@@ -1417,6 +1419,26 @@ def test_an_object_dropped_on_the_way_is_found_again_and_placed() -> None:
     assert [f.reason for f in rec.failures] == ["dropped while carrying"]
     assert _calls(house, "grasp") == ["tomato_soup_can"] * 2
     assert house.things[1].released_in == "tray"
+
+
+@pytest.mark.parametrize("at_the_end", [False, True])
+def test_a_dropped_object_is_looked_for_even_where_the_cameras_had_seen(at_the_end) -> None:
+    """paper-2 (2026-12-06): the spoon slipped from the fingers at the pencil case; every
+    view of the search again was skipped as seen (before it fell) and the task ended
+    without it. Views count for skipping only from the drop on."""
+    house = FakeHouse(
+        _things(), drop_while_carrying={"tomato_soup_can": 1}, drop_at_the_end=at_the_end
+    )
+    house.looks = []
+    house.look_range, house.look_bearing = 2.5, 1.0
+    task = _task(house)
+    report = task.run()
+    rec = _record(report, "tomato_soup_can")
+    assert rec.dropped and rec.placed, rec.failures
+    assert _calls(house, "grasp").count("tomato_soup_can") == 2
+    assert task.views_skipped > 0  # the grid still saved walks
+    for t in house.things.values():
+        assert t.released_in == _home(t.label), t.label
 
 
 def test_an_object_that_slips_out_as_the_arm_moves_to_carry_is_not_carried() -> None:

@@ -119,6 +119,21 @@ def _spec(cls: type[Message], name: str) -> FieldSpec:
 
 
 @st.composite
+def seen_grid(draw: st.DrawFn) -> Message:
+    """A SeenGrid whose three grids share one shape."""
+    shape = draw(hnp.array_shapes(min_dims=2, max_dims=2, min_side=0, max_side=6))
+    at = hnp.arrays(np.float32, shape, elements=st.floats(0.0, 1e4, width=32))
+    return m.SeenGrid(
+        stamp=draw(st.floats(0.0, 1e6)),
+        origin=np.array(draw(st.lists(st.floats(-100, 100), min_size=2, max_size=2))),
+        resolution=draw(st.floats(0.01, 1.0)),
+        cells=draw(hnp.arrays(np.uint8, shape, elements=st.integers(0, 3))),
+        floor_at=draw(at),
+        table_at=draw(at),
+    )
+
+
+@st.composite
 def unit_quat(draw: st.DrawFn) -> np.ndarray:
     v = np.array(draw(st.lists(st.floats(-1, 1), min_size=4, max_size=4)), dtype=float)
     n = float(np.linalg.norm(v))
@@ -366,15 +381,7 @@ STRATEGIES: dict[type[Message], st.SearchStrategy] = {
     m.NavigationResult: auto(m.NavigationResult),
     m.Detections: rows_of(m.Detections, ("labels",)),
     m.ObjectTracks: rows_of(m.ObjectTracks, ("labels",)),
-    m.SeenGrid: auto(
-        m.SeenGrid,
-        resolution=st.floats(0.01, 1.0),
-        cells=hnp.arrays(
-            np.uint8,
-            hnp.array_shapes(min_dims=2, max_dims=2, max_side=6),
-            elements=st.integers(0, 3),
-        ),
-    ),
+    m.SeenGrid: seen_grid(),
     m.GraspRequest: auto(m.GraspRequest, max_distance=nonneg),
     m.HandleRequest: auto(m.HandleRequest),
     m.TaskProgress: task_progress(),

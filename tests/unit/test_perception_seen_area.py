@@ -100,3 +100,15 @@ def test_a_frame_marks_the_floor_it_shows_within_reach_in_the_grid_frame():
     assert not area.snapshot(0.0).seen(g(far), FLOOR).any()
     assert not area.snapshot(0.0).seen(g(behind), FLOOR).any()
     assert not area.snapshot(0.0).seen(g(ahead), TABLE).any()
+
+
+def test_a_reader_asks_what_was_seen_since_a_time():
+    # an object fell at t = 10: only views from then on say where it does not lie
+    area = SeenArea(SeenConfig(resolution=0.1, min_views=1))
+    area.mark(np.array([[1.05, 2.05, 0.0], [3.05, 2.05, 0.0]]), stamp=4.0)
+    area.mark(np.array([[3.05, 2.05, 0.0]]), stamp=12.0)
+    grid = area.snapshot(12.0)
+    q = np.array([[1.05, 2.05], [3.05, 2.05]])
+    assert grid.seen(q, FLOOR).tolist() == [True, True]
+    assert grid.seen(q, FLOOR, since=10.0).tolist() == [False, True]
+    assert not grid.seen(q, TABLE, since=0.0).any()
