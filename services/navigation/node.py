@@ -167,6 +167,7 @@ class NavigationNode(Service):
         self.amcl: ParticleFilter | None = None
         self.map_to_odom: Pose2 = (0.0, 0.0, 0.0)
         self.keepout_only: np.ndarray | None = None
+        self.walk_exempt: set[int] = set()  # tracks near where the current walk began
         if nc.mode == "mapping":
             self.slam = OnlineSlam(cfg.slam)
             self.costmap: Costmap | None = None
@@ -404,16 +405,32 @@ class NavigationNode(Service):
         c = np.asarray(tracks.centroids, dtype=float).reshape(-1, 3)
         xy = transform_points(self.map_to_odom, c[:, :2]) if len(c) else c[:, :2]
         goal = self.navigator.goal.pose[:2] if self.navigator.goal is not None else None
+        # walking: the tracks near the robot where the walk began are what it handles or
+        # holds; every other one stays an obstacle however near it passes (object_layer)
+        walking = goal is not None
+        exempt = np.isin(np.asarray(tracks.ids), list(self.walk_exempt)) if walking else None
         discs = floor_obstacles(
             np.column_stack([xy, c[:, 2]]),
             tracks.extents,
             tracks.confirmed,
             self.floor_zones,
-            (base[0], base[1]),
+            None if walking else (base[0], base[1]),
             None if goal is None else (float(goal[0]), float(goal[1])),
             self.config.objects,
+            exempt,
         )
         self.costmap.set_objects(discs)
+
+    def _tracks_near(self, pose: Pose2) -> set[int]:
+        """Ids of perception's tracks within the object layer's ``near_robot`` of ``pose``
+        (map frame)."""
+        tracks = self.objects_cache.get()
+        if tracks is None or not len(tracks.ids):
+            return set()
+        c = np.asarray(tracks.centroids, dtype=float).reshape(-1, 3)
+        xy = transform_points(self.map_to_odom, c[:, :2])
+        near = np.hypot(xy[:, 0] - pose[0], xy[:, 1] - pose[1]) < self.config.objects.near_robot
+        return {int(i) for i in np.asarray(tracks.ids)[near]}
 
     def _build_mapping_costmap(self) -> None:
         """The costmap of the SLAM map's known area (+ a margin): the planner's graph
@@ -691,6 +708,7 @@ class NavigationNode(Service):
         if self.costmap is None:
             self._finish(job, "no_path", "no_path: no map yet", pose)
             return False
+        self.walk_exempt = self._tracks_near(pose)
         why = self.navigator.start(target, now, pose, self.costmap, self.static_costmap,
                                    tol_xy, tol_yaw, ignore_yaw)  # fmt: skip
         if why:

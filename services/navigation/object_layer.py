@@ -14,6 +14,11 @@ Which tracks become discs (:func:`floor_obstacles`): confirmed, centroid lower t
 ``max_height`` (a table's objects lie under no path), inside one of the floor zones where
 objects are searched (false detections elsewhere, e.g. in a doorway, would close it), and
 not near the robot or the walk's goal (the object it handles, holds or walks up to).
+During a walk "near the robot" means near where the walk started (the node passes those
+tracks as ``exempt`` and no ``robot_xy``): an object the walk passes is an obstacle all
+the way. Tested against the robot's pose at every scan, the disc of a standing cracker
+box vanished as the robot came within 0.6 m of it, the path was planned through it again
+and the trunk knocked it over (paper-1, 2026-12-06; seed-118 lost its cracker box so).
 """
 
 from __future__ import annotations
@@ -48,18 +53,22 @@ def floor_obstacles(
     extents: np.ndarray,
     confirmed: np.ndarray,
     zones: Sequence[tuple[float, float, float, float]],
-    robot_xy: tuple[float, float],
+    robot_xy: tuple[float, float] | None,
     goal_xy: tuple[float, float] | None,
     cfg: ObjectLayerConfig,
+    exempt: np.ndarray | None = None,
 ) -> list[Disc]:
     """Discs (map frame) for the tracks with map-frame ``centroids`` (N, 3) and
     ``extents`` (N, 3) that count as floor obstacles (the module docstring says which);
-    ``zones`` are (x_min, y_min, x_max, y_max) areas."""
+    ``zones`` are (x_min, y_min, x_max, y_max) areas; ``exempt`` (N,) marks tracks that
+    are none, and without ``robot_xy`` no track is left out for lying near the robot."""
     if not cfg.enabled:
         return []
     c = np.asarray(centroids, dtype=float).reshape(-1, 3)
     e = np.asarray(extents, dtype=float).reshape(-1, 3)
     ok = np.asarray(confirmed, dtype=bool).reshape(-1)
+    if exempt is not None:
+        ok = ok & ~np.asarray(exempt, dtype=bool).reshape(-1)
     if not (len(c) == len(e) == len(ok)):
         raise ValueError(f"centroids {len(c)}, extents {len(e)}, confirmed {len(ok)} differ")
     out: list[Disc] = []
@@ -69,7 +78,7 @@ def floor_obstacles(
             continue
         if not any(x0 - m <= x <= x1 + m and y0 - m <= y <= y1 + m for x0, y0, x1, y1 in zones):
             continue
-        if math.hypot(x - robot_xy[0], y - robot_xy[1]) < cfg.near_robot:
+        if robot_xy is not None and math.hypot(x - robot_xy[0], y - robot_xy[1]) < cfg.near_robot:
             continue
         if goal_xy is not None and math.hypot(x - goal_xy[0], y - goal_xy[1]) < cfg.near_goal:
             continue

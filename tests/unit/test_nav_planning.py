@@ -659,6 +659,11 @@ def test_paths_go_round_the_floor_objects_perception_has_seen():
     assert floor_obstacles(on_table, ext, [True], zones, start, goal, cfg) == []
     doorway = np.array([[5.0, 2.0, 0.05]])
     assert floor_obstacles(doorway, ext, [True], zones, start, goal, cfg) == []
+    # walking (no robot position): the box stays a disc however near the robot passes,
+    # unless it lay near where the walk began (paper-1, 2026-12-06: the disc vanished
+    # 0.6 m from the robot, the path ran through it again and the trunk knocked it over)
+    assert floor_obstacles(box, ext, [True], zones, None, goal, cfg) == discs
+    assert floor_obstacles(box, ext, [True], zones, None, goal, cfg, np.array([True])) == []
     # the object gone from the memory: the layer empties, the straight path is back
     assert cm.set_objects([]) and not cm.objects.any()
     assert plan_path(cm, start, goal).length == pytest.approx(bare.length)
@@ -772,3 +777,46 @@ def test_a_table_stance_by_a_leg_turns_about_the_object_nose_under_the_top():
         guard, margin,
     )  # fmt: skip
     assert keep is None
+
+
+def test_a_walk_keeps_the_floor_objects_it_passes_but_not_those_where_it_began():
+    # paper-1 (2026-12-06): the node left out every track within 0.6 m of the robot at
+    # each scan (the rule for the object it handles or holds): the disc of a standing
+    # cracker box vanished as a walk came near, and the box was knocked over
+    from types import SimpleNamespace
+
+    from quadmanip.common import messages as m
+    from quadmanip.services.navigation.config import NavigationConfig
+    from quadmanip.services.navigation.node import NavigationNode
+
+    plan = true_floor_plan()
+    node = NavigationNode.__new__(NavigationNode)
+    node.config = NavigationConfig()
+    node.map_to_odom = (0.0, 0.0, 0.0)
+    node.costmap = _costmap(plan)
+    node.floor_zones = [(1.0, 0.5, 4.0, 2.5)]
+    box = (2.3, 1.45)
+    tracks = m.ObjectTracks(
+        stamp=0.0, ids=np.array([9]), labels=["cracker_box"],
+        centroids=np.array([[*box, 0.105]]),
+        extents=np.array([[0.16, 0.08, 0.21]], dtype=np.float32),
+        confidences=np.array([0.9], dtype=np.float32), observations=np.array([9]),
+        last_seen=np.array([0.0]), confirmed=np.array([1], dtype=np.uint8),
+        map_centroids=np.array([[*box, 0.105]]), in_map=True,
+    )  # fmt: skip
+    node.objects_cache = SimpleNamespace(get=lambda: tracks)
+    node.navigator = SimpleNamespace(goal=None)
+    node.walk_exempt = set()
+    beside = (box[0] - 0.4, box[1] - 0.1, 0.0)  # the robot 0.41 m from the box
+
+    def disc_there() -> bool:
+        node._update_objects(beside)
+        return bool(node.costmap.objects.any())
+
+    assert not disc_there()  # standing by it, no walk: what it handles
+    node.navigator.goal = SimpleNamespace(pose=(3.8, 1.2, 0.0), objects_off=False)
+    assert disc_there()  # walking past it: an obstacle however near
+    assert node._tracks_near(beside) == {9}
+    node.walk_exempt = node._tracks_near(beside)  # a walk that began beside it
+    assert not disc_there()
+    assert node._tracks_near((0.8, 1.2, 0.0)) == set()
