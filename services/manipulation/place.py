@@ -174,10 +174,7 @@ class PlacePrimitive(Primitive):
         self.stage("place: retract", 0.75)
         yield from self.line_to(plan.retract)
         self.stage("place: verify empty", 0.9)
-        # the fingers close (empty: nothing between them) while the trunk returns: the
-        # check took 2 s a place one after the other; the next grasp opens them as it
-        # goes to its ready pose
-        yield from self.move_body(0.0, 0.0, 0.0, during=self.close_gripper())
+        yield from self.close_gripper()
         if self.monitor.state is GripState.HOLDING:
             # it may stand between the fingers rather than hang in them: open, rise, again
             self.stage("place: clear the fingers", 0.92)
@@ -186,6 +183,7 @@ class PlacePrimitive(Primitive):
             yield from self.close_gripper()
         if self.monitor.state is GripState.HOLDING:
             raise PrimitiveFailed("object_stuck: the fingers still hold something after release")
+        yield from self.move_body(0.0, 0.0, 0.0, during=self.open_gripper())
 
     def _transit(self) -> Script:
         """Up first, so the object clears whatever is between it and the region, then
