@@ -1383,6 +1383,14 @@ class TidyTask:
         pts = view_samples(vp, (z.target[0], z.target[1]), z.size, self._zone_search())
         if not pts:
             return False
+        # an object once found there and not done with, whose track the memory has since
+        # dropped (a few missed detections from afar), is looked for again (paper-3,
+        # 2026-12-06: a Rubik's cube found early, gone from the memory, never taken up)
+        if any(
+            not r.finished and not r.grasped and sees(vp, r.position, self._zone_search())
+            for r in self.report.objects
+        ):
+            return False
         # only views since the last time an object fell or was set down count: the cells
         # seen before show nothing of where it lies now (paper-2, 2026-12-06: the spoon
         # slipped from the fingers at the pencil case, every view of the search again was
