@@ -67,7 +67,7 @@ from quadmanip.services.perception.object_memory import (
     planar_pose_matrix,
 )
 from quadmanip.services.perception.rejections import save_rejection
-from quadmanip.services.perception.seen_area import SeenArea
+from quadmanip.services.perception.seen_area import FLOOR, TABLE, SeenArea
 
 __all__ = ["PerceptionNode", "main"]
 
@@ -88,6 +88,15 @@ class Processed:
     problem: str = ""  # why the frame was not used ("" if it was)
     reported: list[Detection] = field(default_factory=list)  # what was published
     wall: float = field(default_factory=time.monotonic)
+
+
+def seen_grid(area: SeenArea, stamp: float) -> m.SeenGrid:
+    """``area`` as the ``perception/seen`` message (copies)."""
+    x0, y0 = area.origin
+    cells = area.seen(FLOOR) * m.SEEN_FLOOR | area.seen(TABLE) * m.SEEN_TABLE
+    return m.SeenGrid(stamp=stamp, origin=[x0, y0], resolution=area.config.resolution,
+                      cells=cells.astype(np.uint8), floor_at=area.seen_at(FLOOR).copy(),
+                      table_at=area.seen_at(TABLE).copy())  # fmt: skip
 
 
 class PerceptionNode(Service):
@@ -349,7 +358,7 @@ class PerceptionNode(Service):
             self.t_objects = now
         if now - self.t_seen >= self.config.seen.period:
             with self.lock:
-                grid = self.seen.snapshot(self.t_frame)
+                grid = seen_grid(self.seen, self.t_frame)
             self.pub_seen.publish(grid)
             self.t_seen = now
 

@@ -23,12 +23,11 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from quadmanip.common import messages as m
 from quadmanip.services.perception.point_cloud import lift_box
 
 __all__ = ["FLOOR", "TABLE", "SeenArea", "SeenConfig"]
 
-FLOOR, TABLE = m.SEEN_FLOOR, m.SEEN_TABLE
+FLOOR, TABLE = 0, 1  # the two levels a cell is seen at (the node turns them into SeenGrid's bits)
 
 
 @dataclass(frozen=True)
@@ -75,11 +74,13 @@ class SeenArea:
         r = self.config.resolution
         return self.col0 * r, self.row0 * r
 
-    @property
-    def cells(self) -> np.ndarray:
-        """The ``FLOOR`` / ``TABLE`` bits of the cells shown by ``min_views`` frames."""
-        seen = self.views >= self.config.min_views
-        return (seen[0] * FLOOR | seen[1] * TABLE).astype(np.uint8)
+    def seen(self, level: int) -> np.ndarray:
+        """Cells of ``level`` (``FLOOR``, ``TABLE``) shown by ``min_views`` frames."""
+        return self.views[level] >= self.config.min_views
+
+    def seen_at(self, level: int) -> np.ndarray:
+        """The stamp of each cell's latest view at ``level`` (0: never)."""
+        return self.last[level]
 
     def mark(self, points: np.ndarray, stamp: float = 0.0) -> int:
         """Count one frame's view (at ``stamp``) of the cells of ``points`` (N, 3; the
@@ -134,13 +135,6 @@ class SeenArea:
         m = np.asarray(to_grid, dtype=float)
         pts[:, :2] = pts[:, :2] @ m[:2, :2].T + m[:2, 2]
         return self.mark(pts, stamp)
-
-    def snapshot(self, stamp: float) -> m.SeenGrid:
-        """The grid as a message (a copy)."""
-        x0, y0 = self.origin
-        return m.SeenGrid(stamp=stamp, origin=[x0, y0], resolution=self.config.resolution,
-                          cells=self.cells, floor_at=self.last[0].copy(),
-                          table_at=self.last[1].copy())  # fmt: skip
 
     def _grow(self, r_lo: int, r_hi: int, c_lo: int, c_hi: int) -> None:
         """Make the grid hold rows r_lo..r_hi and columns c_lo..c_hi (cell indices),

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from quadmanip.services.perception.seen_area import FLOOR, TABLE, SeenArea, SeenConfig
+from quadmanip.common.messages import SEEN_FLOOR, SEEN_TABLE
+from quadmanip.services.perception.node import seen_grid
+from quadmanip.services.perception.seen_area import SeenArea, SeenConfig
 
 pytestmark = pytest.mark.unit
 
@@ -21,12 +23,12 @@ def test_floor_and_table_returns_mark_their_cells_and_nothing_else():
     )
     assert area.mark(pts) == 2
     q = np.array([[1.01, 2.09], [1.11, 2.05], [3.0, -0.99], [5.0, 5.0], [-40.0, 0.0]])
-    assert area.snapshot(0.0).seen(q, FLOOR).tolist() == [True, False, False, False, False]
-    assert area.snapshot(0.0).seen(q, TABLE).tolist() == [False, False, True, False, False]
+    assert seen_grid(area, 0.0).seen(q, SEEN_FLOOR).tolist() == [True, False, False, False, False]
+    assert seen_grid(area, 0.0).seen(q, SEEN_TABLE).tolist() == [False, False, True, False, False]
     # seen again adds nothing; a table top over a seen floor cell counts
     assert area.mark(pts) == 0
     assert area.mark(np.array([[1.05, 2.05, 0.45]])) == 1
-    assert area.snapshot(0.0).seen(q[:1], TABLE).tolist() == [True]
+    assert seen_grid(area, 0.0).seen(q[:1], SEEN_TABLE).tolist() == [True]
 
 
 def test_a_cell_counts_seen_after_min_views_frames_each_counted_once():
@@ -36,26 +38,26 @@ def test_a_cell_counts_seen_after_min_views_frames_each_counted_once():
     frame = np.array([[1.05, 2.05, 0.0], [1.06, 2.04, 0.0], [1.04, 2.06, 0.01]])
     assert area.mark(frame) == 0  # three returns in one frame are one view
     assert area.mark(frame) == 0
-    assert not area.snapshot(0.0).seen(q, FLOOR)[0]
+    assert not seen_grid(area, 0.0).seen(q, SEEN_FLOOR)[0]
     assert area.mark(frame) == 1
-    assert area.snapshot(0.0).seen(q, FLOOR)[0]
+    assert seen_grid(area, 0.0).seen(q, SEEN_FLOOR)[0]
 
 
 def test_the_grid_grows_to_hold_every_mark_and_keeps_the_old_ones():
     area = SeenArea(SeenConfig(resolution=0.1, min_views=1))
     area.mark(np.array([[0.05, 0.05, 0.0]]))
-    shape0 = area.cells.shape
+    shape0 = area.views.shape[1:]
     area.mark(np.array([[9.95, -3.05, 0.0], [-2.05, 4.05, 0.0]]))
-    assert area.cells.shape[0] > shape0[0] and area.cells.shape[1] > shape0[1]
+    assert area.views.shape[1] > shape0[0] and area.views.shape[2] > shape0[1]
     q = np.array([[0.05, 0.05], [9.95, -3.05], [-2.05, 4.05]])
-    assert area.snapshot(0.0).seen(q, FLOOR).all()
-    assert int(np.count_nonzero(area.cells)) == 3
+    assert seen_grid(area, 0.0).seen(q, SEEN_FLOOR).all()
+    assert int(np.count_nonzero(area.views)) == 3
     # the origin is the corner of cell (0, 0): a mark's cell is where the origin says
-    r, c = np.argwhere(area.cells)[0]
+    r, c = np.argwhere(area.views[0])[0]
     x0, y0 = area.origin
-    assert area.snapshot(0.0).seen(np.array([[x0 + (c + 0.5) * 0.1, y0 + (r + 0.5) * 0.1]]), FLOOR)[
-        0
-    ]
+    assert seen_grid(area, 0.0).seen(
+        np.array([[x0 + (c + 0.5) * 0.1, y0 + (r + 0.5) * 0.1]]), SEEN_FLOOR
+    )[0]
 
 
 def test_bad_configs_are_refused():
@@ -96,10 +98,10 @@ def test_a_frame_marks_the_floor_it_shows_within_reach_in_the_grid_frame():
     far = np.array([[2.6, 0.0]])  # beyond the reach along the optical axis
     behind = np.array([[-0.5, 0.0]])
     g = lambda p: p @ to_grid[:2, :2].T + to_grid[:2, 2]  # noqa: E731
-    assert area.snapshot(0.0).seen(g(ahead), FLOOR).all()
-    assert not area.snapshot(0.0).seen(g(far), FLOOR).any()
-    assert not area.snapshot(0.0).seen(g(behind), FLOOR).any()
-    assert not area.snapshot(0.0).seen(g(ahead), TABLE).any()
+    assert seen_grid(area, 0.0).seen(g(ahead), SEEN_FLOOR).all()
+    assert not seen_grid(area, 0.0).seen(g(far), SEEN_FLOOR).any()
+    assert not seen_grid(area, 0.0).seen(g(behind), SEEN_FLOOR).any()
+    assert not seen_grid(area, 0.0).seen(g(ahead), SEEN_TABLE).any()
 
 
 def test_a_reader_asks_what_was_seen_since_a_time():
@@ -107,8 +109,8 @@ def test_a_reader_asks_what_was_seen_since_a_time():
     area = SeenArea(SeenConfig(resolution=0.1, min_views=1))
     area.mark(np.array([[1.05, 2.05, 0.0], [3.05, 2.05, 0.0]]), stamp=4.0)
     area.mark(np.array([[3.05, 2.05, 0.0]]), stamp=12.0)
-    grid = area.snapshot(12.0)
+    grid = seen_grid(area, 12.0)
     q = np.array([[1.05, 2.05], [3.05, 2.05]])
-    assert grid.seen(q, FLOOR).tolist() == [True, True]
-    assert grid.seen(q, FLOOR, since=10.0).tolist() == [False, True]
-    assert not grid.seen(q, TABLE, since=0.0).any()
+    assert grid.seen(q, SEEN_FLOOR).tolist() == [True, True]
+    assert grid.seen(q, SEEN_FLOOR, since=10.0).tolist() == [False, True]
+    assert not grid.seen(q, SEEN_TABLE, since=0.0).any()

@@ -82,6 +82,13 @@ _CROSS_FIELD: dict[str, dict[str, Any]] = {
         "resolution": 0.05,
         "data": (np.arange(N_ROWS * N_COLS) % 102 - 1).astype(np.int8).reshape(N_ROWS, N_COLS),
     },
+    # cells hold the floor and table bits; the stamps share the cells' shape
+    "qm.SeenGrid": {
+        "resolution": 0.1,
+        "cells": (np.arange(N_ROWS * N_COLS) % 4).astype(np.uint8).reshape(N_ROWS, N_COLS),
+        "floor_at": np.arange(N_ROWS * N_COLS, dtype=np.float32).reshape(N_ROWS, N_COLS),
+        "table_at": np.arange(N_ROWS * N_COLS, dtype=np.float32).reshape(N_ROWS, N_COLS) + 0.5,
+    },
 }
 
 
