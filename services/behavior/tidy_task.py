@@ -1380,14 +1380,15 @@ class TidyTask:
         assert z is not None
         if _synthetic(z.name):  # where a dropped object may lie: looked at, always
             return False
-        pts = view_samples(vp, (z.target[0], z.target[1]), z.size, self._zone_search())
+        sc = self._zone_search()
+        pts = view_samples(vp, (z.target[0], z.target[1]), z.size, sc)
         if not pts:
             return False
         # an object once found there and not done with, whose track the memory has since
         # dropped (a few missed detections from afar), is looked for again (paper-3,
         # 2026-12-06: a Rubik's cube found early, gone from the memory, never taken up)
         if any(
-            not r.finished and not r.grasped and sees(vp, r.position, self._zone_search())
+            not r.finished and not r.grasped and sees(vp, r.position, sc)
             for r in self.report.objects
         ):
             return False

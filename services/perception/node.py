@@ -305,9 +305,10 @@ class PerceptionNode(Service):
             ]
             with self.lock:
                 self._follow_the_map()
-                before = {t.id for t in self.memory.tracks()}
+                before = self.memory.confirmed_ids()
                 self.memory.update(obs, view, img.stamp)
-                new = [t for t in self.memory.tracks() if t.id not in before]
+                fresh = self.memory.confirmed_ids() - before  # (copies of these only)
+                new = [t for i in sorted(fresh) if (t := self.memory.get(i)) is not None]
             self._mark_seen(cam, img, cam_p, cam_q, np.asarray(base[0])[:2])
             for t in new:  # where a track comes from, for whoever reads a trial's log
                 self.log.info("track confirmed", id=t.id, cls=t.class_name, camera=cam,

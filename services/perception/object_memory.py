@@ -264,6 +264,10 @@ class ObjectMemory:
             t.copy() for _, t in sorted(self._tracks.items()) if t.confirmed or not confirmed_only
         ]
 
+    def confirmed_ids(self) -> set[int]:
+        """Ids of the confirmed tracks (no copies: cheap enough for every frame)."""
+        return {i for i, t in self._tracks.items() if t.confirmed}
+
     def get(self, track_id: int) -> Track | None:
         t = self._tracks.get(track_id)
         return None if t is None else t.copy()

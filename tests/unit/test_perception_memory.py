@@ -103,10 +103,11 @@ def test_confirmation_needs_k_observations() -> None:
     assert mem.tracks() == []
     assert len(mem.tracks(confirmed_only=False)) == 1
     mem.update([obs(p)], view(), 0.1)
-    assert mem.tracks() == []
+    assert mem.tracks() == [] and mem.confirmed_ids() == set()
     mem.update([obs(p)], view(), 0.2)
     (t,) = mem.tracks()
     assert t.confirmed and t.observations == 3
+    assert mem.confirmed_ids() == {t.id}
 
 
 def test_spurious_detection_is_forgotten() -> None:
