@@ -739,11 +739,20 @@ def test_viewpoints_the_cameras_have_seen_already_are_skipped_and_nothing_is_mis
 def test_drawers_open_first_left_right_top_and_the_tools_drawer_wide(tidy_run) -> None:
     house, report, _ = tidy_run
     pulls = _calls(house, "open_drawer")
-    # the top drawer (tools) is pulled to 24 cm: 19 cm, then the rest
-    assert [d for d, _ in pulls] == ["drawer_left", "drawer_right", "drawer_top", "drawer_top"]
+    # the top drawer (tools) is pulled to 24 cm in one pull, from farther back
+    assert [d for d, _ in pulls] == ["drawer_left", "drawer_right", "drawer_top"]
     assert house.drawers == pytest.approx(
         {"drawer_left": 0.15, "drawer_right": 0.15, "drawer_top": 0.24}
     )
+    dc = CFG.drawers
+    for name, standoff in (
+        ("drawer_left", dc.handle_standoff),
+        ("drawer_right", dc.handle_standoff),
+        ("drawer_top", dc.long_pull_standoff),
+    ):
+        k = next(i for i, c in enumerate(house.calls) if c[0] == "open_drawer" and c[1][0] == name)
+        squared = next(c for c in reversed(house.calls[:k]) if c[0] == "approach")
+        assert squared[1][1] == pytest.approx(standoff), name
     last_pull = max(i for i, (what, _) in enumerate(house.calls) if what == "open_drawer")
     first_grasp = min(i for i, (what, _) in enumerate(house.calls) if what == "grasp")
     assert last_pull < first_grasp
@@ -1230,7 +1239,7 @@ def test_a_pull_longer_than_the_arm_reaches_is_asked_again_shorter() -> None:
     assert top.ok and top.opened == pytest.approx(0.24)
     assert house.drawers["drawer_top"] == pytest.approx(0.24)
     pulls = [c[1][1] for c in house.calls if c[0] == "open_drawer" and c[1][0] == "drawer_top"]
-    assert pulls[0] == pytest.approx(0.19) and all(p <= 0.12 for p in pulls[1:])
+    assert pulls[0] == pytest.approx(0.24) and all(p <= 0.12 for p in pulls[1:])
     assert len(top.failures) == 1  # one refusal, then pulls the arm can make
     assert _record(report, "screwdriver").placed
 

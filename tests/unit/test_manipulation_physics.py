@@ -213,6 +213,28 @@ def test_open_drawer(which):
     _assert_honest(h)
 
 
+def test_tools_drawer_opens_24cm_in_one_pull_from_the_tasks_long_pull_stance():
+    """The task's one long pull (behavior DrawerConfig.long_pull_standoff, long_pull):
+    from 0.59 m the arm grips farther out and pulls the tools' drawer to its 24 cm."""
+    from quadmanip.common import robot_description as rd
+    from quadmanip.common.config import load_config
+    from quadmanip.services.behavior.config import BehaviorConfig
+
+    dc = load_config(BehaviorConfig, "behavior").drawers
+    world = drawer_world("top", handle_arm_x=dc.long_pull_standoff - float(rd.arm_mount()[0]))
+    h = SimHarness(world=world)
+    h.settle(0.3)
+    handle = h.world_to_base(h.data.body(world.drawer_handles["top"]).xpos)
+    assert handle[0] == pytest.approx(dc.long_pull_standoff, abs=0.005)
+    plan = plan_drawer(GEOM, CFG, handle, np.array([-1.0, 0.0, 0.0]), dc.long_pull)
+    prim = h.run(DrawerPrimitive(GEOM, CFG, plan), KP, KD, timeout=40.0)
+    assert prim.status is Status.SUCCEEDED, prim.reason
+    h.settle(0.5)
+    opened = h.data.qpos[world.model.joint(world.drawer_joints["top"]).qposadr[0]]
+    assert opened >= dc.tool_drawer_open - 0.005
+    _assert_honest(h)
+
+
 def test_place_tool_into_open_drawer():
     """Paper order (Section 7.2): open the drawer first, then put a tool in it."""
     world = drawer_place_world("padlock")
