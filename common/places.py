@@ -80,6 +80,15 @@ class Place:
         x0, y0, x1, y1 = self.area
         return x0 - margin <= p[0] <= x1 + margin and y0 - margin <= p[1] <= y1 + margin
 
+    def outside_by(self, p: Sequence[float]) -> float:
+        """Signed distance (m) of plan point ``p`` from the place's area: positive
+        outside it, negative inside (how far in from its nearest edge)."""
+        dx = abs(p[0] - self.target[0]) - self.size[0] / 2
+        dy = abs(p[1] - self.target[1]) - self.size[1] / 2
+        if dx > 0.0 or dy > 0.0:
+            return math.hypot(max(dx, 0.0), max(dy, 0.0))
+        return max(dx, dy)
+
 
 def places_path_for(map_yaml: str | Path) -> Path:
     """The places file that belongs to a map: ``NAME.places.toml`` beside ``NAME.yaml``."""

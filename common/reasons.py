@@ -7,9 +7,10 @@ caller acts on more than the code, the clause it parses is written and read here
 
 from __future__ import annotations
 
+import math
 import re
 
-__all__ = ["parse_reach_band", "reach_band_text"]
+__all__ = ["narrow_side_text", "parse_narrow_side", "parse_reach_band", "reach_band_text"]
 
 
 #: How a grasp refused as unreachable names the distances ahead (body x, m) it would be
@@ -27,3 +28,20 @@ def parse_reach_band(reason: str) -> tuple[float, float, float] | None:
     """(lo, hi, asked) from a reason holding :func:`reach_band_text`'s clause, else None."""
     m = _REACH_BAND.search(reason)
     return None if m is None else (float(m[1]), float(m[2]), float(m[3]))
+
+
+#: How perception's refusal of a horizontal grasp names where a long box's narrow side
+#: faces: the turn of the robot's heading (deg, left positive) that looks along the box's
+#: long side. The task stands that way (or the opposite way) and probes again.
+_NARROW_SIDE = re.compile(r"narrow side seen turned (-?\d+) deg")
+
+
+def narrow_side_text(turn: float) -> str:
+    """The reason's clause naming the turn ``turn`` (rad) that shows a box's narrow side."""
+    return f"narrow side seen turned {round(math.degrees(turn)):d} deg"
+
+
+def parse_narrow_side(reason: str) -> float | None:
+    """The turn (rad) of a reason holding :func:`narrow_side_text`'s clause, else None."""
+    m = _NARROW_SIDE.search(reason)
+    return None if m is None else math.radians(float(m[1]))

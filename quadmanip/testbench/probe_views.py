@@ -24,7 +24,13 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 from quadmanip.common import robot_description as rd
-from quadmanip.common.rotations import mat_to_quat, quat_from_axis_angle, quat_mul, rot_z
+from quadmanip.common.rotations import (
+    mat_to_quat,
+    quat_from_axis_angle,
+    quat_from_yaw,
+    quat_mul,
+    rot_z,
+)
 from quadmanip.sim.sensors import CameraConfig, RgbdFrame, RgbdRenderer
 from quadmanip.sim.world.builder import World, build_world
 from quadmanip.sim.world.house import load_house
@@ -150,15 +156,22 @@ def render_probe_view(
     catalogue: Catalogue | None = None,
     camera_config: CameraConfig | None = None,
     standoff: float | None = None,
+    turn: float | None = None,
 ) -> ProbeView:
     """Render the probing view of object ``name`` on the ``where`` ('floor'/'table') of the
     grasp trial ``seed``, with ground truth for scoring. A horizontal probe stands
-    ``standoff`` (default: the task's ``side_probe_back``) behind the grasp stance."""
+    ``standoff`` (default: the task's ``side_probe_back``) behind the grasp stance.
+    ``turn`` (rad) sets the object's yaw to the robot's heading plus it (default: the
+    trial's random yaw)."""
     if standoff is None:
         standoff = side_probe_back()
     cat = catalogue or load_catalogue()
     house = load_house()
     scn = grasp_scenario(name, where, seed, house, cat)
+    if turn is not None and scn.robot_start is not None:
+        yaw = math.radians(scn.robot_start[2]) + turn
+        pose = dataclasses.replace(scn.objects[0], quat=tuple(quat_from_yaw(yaw).tolist()))
+        scn = dataclasses.replace(scn, objects=(pose,))
     posture, camera, probing = probe_posture(cat, name, where)
     if probing == "horizontal" and scn.robot_start is not None:
         # the front camera sits below a table top: it sees the object only from farther

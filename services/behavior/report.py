@@ -50,6 +50,10 @@ class ObjectRecord:
     # rad: on a table, the heading it is stood at once its square stance met a leg (one of
     # the task's ``table_slants``); None: square to the table
     table_heading: float | None = None
+    # perception saw it (a long box) turned off the view: stood at along its long side
+    # once (``table_heading``), ``end_walk`` while the walk there is still due
+    end_on: bool = False
+    end_walk: bool = False
     # the class the detector gave it from close by, in the probing view, when that was not
     # the class of its track: the memory's votes from afar no longer rename it
     close_label: str = ""

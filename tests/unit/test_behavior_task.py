@@ -30,7 +30,7 @@ from quadmanip.common import messages as m
 from quadmanip.common.config import CONFIG_DIR, load_config
 from quadmanip.common.object_catalogue import load_catalogue
 from quadmanip.common.places import Place, load_places
-from quadmanip.common.reasons import reach_band_text
+from quadmanip.common.reasons import narrow_side_text, reach_band_text
 from quadmanip.services.behavior.config import BehaviorConfig
 from quadmanip.services.behavior.coverage import sees, view_samples, zone_viewpoints
 from quadmanip.services.behavior.frames import (
@@ -40,6 +40,7 @@ from quadmanip.services.behavior.frames import (
     map_from_odom,
     odom_from_base,
     odom_from_map,
+    wrap,
 )
 from quadmanip.services.behavior.node import progress_message
 from quadmanip.services.behavior.report import ObjectRecord, Progress, TaskReport
@@ -201,6 +202,9 @@ class FakeHouse:
         # labels whose surface seen from above is not level (Section 4.3): perception asks
         # for a probe from the side with the front camera
         self.not_level: set[str] = set()
+        # label -> its long axis's map yaw (a long box, the cracker box): the front camera
+        # refuses it turned more than 20 deg off the view, naming the turn to its end
+        self.long_axis: dict[str, float] = {}
         self.probed_with: list[tuple[str, str]] = []  # (label, camera) of each estimate
         # track id -> the class the memory gives it (voted from afar); a probe from close
         # by detects its true class
@@ -530,6 +534,14 @@ class FakeHouse:
             self.missed = True
             return Outcome(False, f"not in view: no {label} detected"), None
         dist, bearing = _bearing(self.at, t.position)
+        if t.label in self.long_axis and camera == "front_camera":
+            turn = (self.long_axis[t.label] - self.at[2]) % math.pi
+            turn = turn - math.pi if turn > math.pi / 2 else turn
+            if abs(turn) > 0.35:
+                why = (
+                    f"long side turned off the view: {label} in {camera} ({narrow_side_text(turn)})"
+                )
+                return Outcome(False, why), None
         looks = TABLE_LOOKS if t.on_table else FLOOR_LOOKS
         if self.posture not in looks or dist > 1.2 or abs(bearing) > 0.7:
             return Outcome(False, f"not in view: {label} in {camera}"), None
@@ -2467,3 +2479,45 @@ def test_an_object_found_and_never_taken_up_says_why() -> None:
     assert [f.reason for f in recs["tomato_soup_can"].failures] == [
         "not taken up: not in perception's memory at the end"
     ]
+
+
+def _cracker_box_on_the_kitchen_table(x: float, axis_deg: float) -> tuple[FakeHouse, TaskReport]:
+    """seed-120: a cracker box standing on the kitchen table (x, 2.02), its long axis at
+    ``axis_deg`` in the map; the square stance (from the north, heading -90) sees it
+    turned off the view."""
+    things = _things()
+    things[2] = Thing("cracker_box", 3, (x, 2.02, 0.506), on_table=True)
+    house = FakeHouse(things)
+    house.long_axis["cracker_box"] = math.radians(axis_deg)
+    return house, _task(house).run()
+
+
+def test_a_long_box_turned_off_the_view_is_stood_at_end_on_and_taken() -> None:
+    # seed-120: the cracker box turned 68 deg off the view was probed four times from the
+    # square stance ("no graspable candidate") and given up
+    house, report = _cracker_box_on_the_kitchen_table(7.097, 21.6)
+    rec = _record(report, "cracker_box")
+    assert rec.placed, rec.failures
+    assert len(rec.failures) == 1 and "narrow side seen turned" in rec.failures[0].reason
+    # walked (the planner, around the table's corner) to a stance along its long side,
+    # from the west end (its grasp stance 0.41 m back lies out from under the table; the
+    # east end's would be 0.2 m in under it)
+    refused = next(
+        i
+        for i, (what, a) in enumerate(house.calls)
+        if what == "estimate_grasp" and a[0] == "cracker_box"
+    )
+    walk = next(a for what, a in house.calls[refused:] if what == "navigate_to")
+    assert wrap(walk[2] - math.radians(21.6)) == pytest.approx(0.0, abs=math.radians(1.0))
+    assert walk[0] < PLACES["kitchen_table"].area[0]  # west of the table
+    assert ("grasp", "cracker_box") in house.calls
+
+
+def test_a_long_box_whose_ends_lie_under_the_table_is_given_up_at_once() -> None:
+    # the same box in the table's middle, turned along the table: neither end's stance
+    # is near the table's edge; one probe, then given up (not four)
+    house, report = _cracker_box_on_the_kitchen_table(7.2, 0.0)
+    rec = _record(report, "cracker_box")
+    assert not rec.placed and rec.given_up
+    assert len(rec.failures) == 1 and "in under kitchen_table" in rec.failures[0].reason
+    assert ("grasp", "cracker_box") not in house.calls

@@ -17,6 +17,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from quadmanip.common.object_catalogue import load_catalogue
+from quadmanip.common.reasons import parse_narrow_side
 from quadmanip.common.robot_description import GRASP_MAX_TILT, HORIZONTAL_GRASP_DEPTH
 from quadmanip.common.rotations import quat_from_axis_angle, quat_to_mat
 from quadmanip.services.perception import rejections
@@ -329,6 +330,55 @@ def test_horizontal_probe_grasps_a_box_behind_its_front_face(cat):
     np.testing.assert_allclose(est.position, [x, cy, TABLE + 0.05], atol=0.003)
     assert est.width == pytest.approx(sy, abs=0.003)
     assert est.hang == pytest.approx(0.05, abs=0.001)
+
+
+def _box_faces_seen_from(centre, size, yaw, surface, cam):
+    """The side faces of a box standing on ``surface`` that face a camera at ``cam``
+    below its top (the front camera under a table top), sampled every STEP."""
+    sx, sy, sz = size
+    rot = _yaw_rot(yaw)
+    faces = []
+    for normal, half_n, half_t in (((1, 0), sx / 2, sy / 2), ((0, 1), sy / 2, sx / 2)):
+        for sign in (1.0, -1.0):
+            n = rot @ (sign * np.array(normal, dtype=float))
+            mid = np.asarray(centre) + half_n * n
+            if n @ (cam[:2] - mid) <= 0.0:
+                continue  # faces away
+            t = np.array([-n[1], n[0]])
+            g = _grid(-half_t, half_t, surface + 0.005, surface + sz)
+            xy = mid + g[:, :1] * t
+            faces.append(np.column_stack([xy, g[:, 1]]))
+    return np.vstack(faces)
+
+
+@pytest.mark.parametrize("turn_deg", [60.0, -35.0, 90.0])
+def test_a_long_box_turned_off_the_view_is_refused_with_the_turn_to_its_narrow_side(cat, turn_deg):
+    # seed-120: the cracker box (160 x 60 mm) on the kitchen table, its long side 68 deg
+    # off the view: the front camera sees its 16 cm face, wider than the fingers open
+    cam = np.array([0.2255, 0.0, 0.03])
+    size = cat.objects["cracker_box"].size
+    centre = np.array([0.95, 0.02])
+    faces = _box_faces_seen_from(centre, size, math.radians(turn_deg), TABLE, cam)
+    wall = _grid(-0.6, 0.6, -0.2, 0.8)[::4]
+    pts = np.vstack([faces, np.column_stack([np.full(len(wall), 2.0), wall])])
+    est = estimate_grasp(pts, cam, "cracker_box", cat, probing="horizontal", where="table")
+    assert not est.ok, est
+    turn = parse_narrow_side(est.detail)
+    assert turn is not None, est.detail
+    # the turn looks along the long side (either way along it: mod 180 deg)
+    assert _yaw_diff(turn, math.radians(turn_deg)) < math.radians(4.0)
+    # seen along its long side the same box is grasped across its 6 cm
+    along = _box_faces_seen_from(centre, size, math.radians(3.0), TABLE, cam)
+    ok = estimate_grasp(
+        np.vstack([along, pts[len(faces) :]]),
+        cam,
+        "cracker_box",
+        cat,
+        probing="horizontal",
+        where="table",
+    )
+    assert ok.ok, ok.reason
+    assert ok.width == pytest.approx(size[1], abs=0.01)
 
 
 def test_tall_table_object_asks_for_horizontal_probing(cat):

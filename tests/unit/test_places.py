@@ -17,6 +17,18 @@ def test_a_place_covers_its_rectangle_and_the_margin_around_it():
     assert deposit.covers((7.0, 3.65)) and not deposit.covers((7.01, 3.65))
 
 
+def test_a_places_signed_distance_is_positive_outside_and_negative_inside():
+    table = Place(
+        "kitchen_table", "search_table", (7.2, 2.62, -1.5708), (7.2, 1.9, 0.4), (0.9, 0.6)
+    )
+    # area x 6.75-7.65, y 1.6-2.2
+    assert table.outside_by((6.716, 1.869)) == pytest.approx(0.034)  # west of its end
+    assert table.outside_by((7.2, 2.5)) == pytest.approx(0.3)  # north of its edge
+    assert table.outside_by((8.05, 2.5)) == pytest.approx(0.5)  # off its corner (0.4, 0.3)
+    assert table.outside_by((6.79, 2.02)) == pytest.approx(-0.04)  # 4 cm in from the end
+    assert table.outside_by((7.2, 1.9)) == pytest.approx(-0.3)  # its middle
+
+
 def test_keepout_areas_load_save_and_refuse_an_area_without_a_size(tmp_path):
     from quadmanip.common.places import PlacesError, load_places, save_places
 
