@@ -57,6 +57,8 @@ class ObjectRecord:
     # the class the detector gave it from close by, in the probing view, when that was not
     # the class of its track: the memory's votes from afar no longer rename it
     close_label: str = ""
+    # s (robot time): not taken up again before this (its walk goals were all blocked)
+    wait_until: float = -math.inf
     time_spent: float = 0.0  # s of robot time spent on it (approach to let go)
     failures: list[Failure] = field(default_factory=list)
     first_position: Point3 = (math.nan, math.nan, math.nan)  # where it was first seen

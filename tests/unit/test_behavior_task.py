@@ -174,6 +174,10 @@ class FakeHouse:
         # and stops a walk whose goal the LiDAR finds too close to one on the way
         self.refusal = "rejected: the goal is in an obstacle or too close to one"
         self.blocked_goals: list[tuple[float, float]] = []  # walk goals found too near something
+        # label -> s: walk goals within 1.1 m of it (once seen) are refused as too close to
+        # an obstacle, for this long after the first such refusal (then clear)
+        self.refuse_near_for: dict[str, float] = {}
+        self.refuse_near_until: dict[str, float] = {}
         # (heading, near): approaches at this heading to targets near there stop at once
         self.blocked_headings: list[tuple[float, tuple[float, float]]] = []
         self.stuck_drawers: dict[str, int] = {}  # pulls of this drawer manipulation refuses
@@ -408,6 +412,16 @@ class FakeHouse:
         self.calls.append(("navigate_to", place or pose))
         if (refused := self._request("navigate_to")) is not None:
             return refused
+        for label, span in self.refuse_near_for.items():
+            t = next(x for x in self.things.values() if x.label == label)
+            if (
+                pose is not None
+                and t.track_id in self.memory
+                and math.dist(pose[:2], t.position[:2]) < 1.1
+            ):
+                until = self.refuse_near_until.setdefault(label, self.t + span)
+                if self.t < until:
+                    return Outcome(False, "blocked: goal too close to an obstacle")
         if pose is not None and any(math.dist(pose[:2], b) < 0.1 for b in self.blocked_goals):
             return Outcome(False, "blocked: goal too close to an obstacle")
         for label, n in self.refuse_near.items():
@@ -2524,3 +2538,28 @@ def test_a_long_box_whose_ends_lie_under_the_table_is_given_up_at_once() -> None
     assert not rec.placed and rec.given_up
     assert len(rec.failures) == 1 and "no stance at its ends clear" in rec.failures[0].reason
     assert ("grasp", "cracker_box") not in house.calls
+
+
+def test_an_object_whose_walk_goals_are_all_blocked_waits_while_others_are_taken_up() -> None:
+    # seed-120: the living table's staging goals were "too close to an obstacle" (a soup
+    # can's track left where it had been picked up); the tennis ball there spent its four
+    # attempts in 0.3 s and was given up. Here every walk goal by the can is refused for
+    # 20 s; the baseball, farther, is known too
+    ball = Thing("baseball", 4, (4.0, 3.2, 0.037))
+    house = FakeHouse([CAN, ball])
+    house.at = (0.0, 1.4, 0.0)  # 2.5 m from the can: it is walked to
+    for t in (CAN, ball):
+        house.memory[t.track_id] = SeenObject(t.track_id, t.label, t.position)
+    house.refuse_near_for = {"tomato_soup_can": 20.0}
+    task = _task(house)
+    assert task._choose_target().value == "approach" and task.target.label == "tomato_soup_can"
+    can = task.target
+    step = task._approach()
+    assert step.value == "choose_target"  # not the same walk again at once
+    assert len(can.failures) == 1 and "too close to an obstacle" in can.failures[0].reason
+    assert can.wait_until == pytest.approx(house.t + CFG.task.blocked_wait)
+    # the next object is the ball, though the can is nearer
+    assert task._choose_target().value == "approach" and task.target.label == "baseball"
+    # with nothing else left, the can is tried again at once (the task does not end on it)
+    house.memory.pop(ball.track_id)
+    assert task._choose_target().value == "approach" and task.target is can
