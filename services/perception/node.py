@@ -3,8 +3,9 @@
 Inputs: ``sim/camera/front`` and ``sim/camera/gripper`` (RGB-D with K and the camera pose
 in the base frame), ``sim/lowstate`` (joint states: grasps are computed from frames taken
 while the arm stands still), ``locomotion/odometry`` (the odom frame of the object
-memory) and ``navigation/pose`` (map-frame centroids when navigation runs). Never anything
-under ``sim/gt``.
+memory), ``navigation/pose`` (map-frame centroids when navigation runs) and
+``behavior/progress`` (the tracks of objects the task took up are forgotten). Never
+anything under ``sim/gt``.
 
 Outputs: ``perception/detections`` (per processed frame: boxes, classes, scores and the
 3-D placement of each), ``perception/objects`` (the object memory, every
@@ -110,6 +111,7 @@ class PerceptionNode(Service):
         Input("sim/lowstate", latest_only=True, doc="joint speeds: is the arm still"),
         Input("locomotion/odometry", doc="base pose in odom (history kept)"),
         Input("navigation/pose", latest_only=True, doc="map->odom for map-frame tracks"),
+        Input("behavior/progress", doc="objects the task took up: their tracks forgotten"),
     )
     outputs = (
         Output("perception/detections", doc="detections per frame"),
@@ -161,6 +163,9 @@ class PerceptionNode(Service):
         for cam, topic in CAMERA_TOPICS.items():
             self.subscribe(topic, lambda img, cam=cam: self._on_frame(cam, img))
         self.subscribe("locomotion/odometry", self._on_odom)
+        # track ids the task reported taken up (None until its first progress message)
+        self.taken: set[int] | None = None
+        self.subscribe("behavior/progress", self._on_progress)
         self.worker = threading.Thread(target=self._work, name="perception-worker", daemon=True)
         self.worker.start()
         self.action_server("estimate_grasp", self._grasp, accept=self._accept, policy="parallel")
@@ -181,6 +186,24 @@ class PerceptionNode(Service):
     def _on_odom(self, od: m.Odometry) -> None:
         with self.lock:
             self.odom.append(od)
+
+    def _on_progress(self, p: m.TaskProgress) -> None:
+        """Forget the tracks of the objects the task took up: a track stays where its
+        object lay until a camera shows the spot empty, and navigation keeps a floor
+        track's spot as an obstacle (seed-120: a soup can's spot, 0.1 m from the living
+        table's stand, refused every walk to that table after the can was placed). The ids
+        taken up before this perception started are not its own (a restart numbers its
+        tracks afresh): the first message only says which they are."""
+        ids = {int(t) for t, g in zip(p.object_track_ids, p.object_grasped, strict=False) if g}
+        with self.lock:
+            if self.taken is None:
+                self.taken = ids
+                return
+            new = ids - self.taken
+            self.taken |= new
+            gone = [t for t in sorted(new) if self.memory.remove(t)]
+        for t in gone:
+            self.log.info("track forgotten: the task took the object up", id=t)
 
     def _base_at(self, stamp: float) -> tuple[np.ndarray, np.ndarray] | None:
         """Base pose in odom nearest ``stamp`` (None if none within ``odom_max_skew``)."""

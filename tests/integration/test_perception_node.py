@@ -189,7 +189,30 @@ def test_detects_remembers_and_grasps_then_survives_bad_input(
         g = seen.get()
         assert not g.seen(ring, m.SEEN_TABLE).any()
         assert not g.seen(obj_map + np.array([[5.0, 5.0]]), m.SEEN_FLOOR).any()
-        # 6. bad frames: a reason, no crash
+        # 6. the task took the object up: its track is forgotten (it would lie where the
+        # object was, an obstacle to navigation, until a camera showed the spot empty)
+        robot.cameras_on = False  # (nothing seen meanwhile: no new track)
+        assert track_of(objects.get(), tid) is not None
+        progress = bus.publisher("behavior/progress")
+
+        def took(grasped: bool) -> m.TaskProgress:
+            return m.TaskProgress(
+                stamp=robot.t, state="running", objects=[OBJECT],
+                object_track_ids=np.array([tid]), object_found_at=np.zeros(1),
+                object_grasped=np.array([grasped]), object_placed=np.zeros(1, bool),
+                object_given_up=np.zeros(1, bool), object_time_s=np.zeros(1),
+                object_attempts=np.zeros(1, np.int32), object_failures=[""],
+                object_positions=np.zeros((1, 3)),
+            )  # fmt: skip
+
+        progress.publish(took(False))  # (the first message: what was taken before it started)
+        time.sleep(0.5)
+        assert track_of(objects.get(), tid) is not None
+        progress.publish(took(True))
+        _wait(lambda: track_of(objects.get(), tid) is None, 10.0, "the track stayed", proc)
+        assert any("track forgotten" in line for line in proc.lines)
+        robot.cameras_on = True
+        # 7. bad frames: a reason, no crash
         bad = _frame(view)
         for frame, why in (
             (m.RgbdImage(**{**bad.__dict__, "depth": np.zeros_like(view.depth)}), "empty depth"),
@@ -201,7 +224,7 @@ def test_detects_remembers_and_grasps_then_survives_bad_input(
             time.sleep(0.5)
             _, r = _result(bus, "estimate_grasp", m.GraspRequest(stamp=0.0, label=OBJECT), proc)
             assert r is not None and r.status == "failed" and why in r.reason, (why, r)
-        # 7. the camera stops: goals are rejected with the reason, the node lives on
+        # 8. the camera stops: goals are rejected with the reason, the node lives on
         robot.cameras_on = False
         time.sleep(1.5)
         h, _ = _result(bus, "estimate_grasp", m.GraspRequest(stamp=0.0, label=OBJECT), proc)
