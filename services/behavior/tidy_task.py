@@ -1565,15 +1565,26 @@ class TidyTask:
         here = self._pose()
         table = self._table_of(rec)
         if table is not None and rec.end_walk and rec.table_heading is not None:
+            # a goal by the table's end may lie near something on the floor: farther out,
+            # then nearer; none taken: the walk is due again at the next try (seed-113:
+            # the goal 0.86 m out was too close to an obstacle, and the next try stood
+            # square to the table again)
             h = rec.table_heading
-            with self._lock:
-                rec.end_walk = False
-            goal = (
-                rec.position[0] - standoff * math.cos(h),
-                rec.position[1] - standoff * math.sin(h),
-                h,
-            )
-            return self.robot.navigate_to(pose=goal)
+            out = Outcome(False, "no walk goal")
+            for back in (standoff, standoff + 0.25, standoff - 0.15):
+                goal = (
+                    rec.position[0] - back * math.cos(h),
+                    rec.position[1] - back * math.sin(h),
+                    h,
+                )
+                out = self.robot.navigate_to(pose=goal)
+                if out.ok:
+                    with self._lock:
+                        rec.end_walk = False
+                    return out
+                if not any(b in out.reason for b in (REFUSED_GOAL, *BAD_GOAL)):
+                    return out
+            return out
         if table is not None:
             return self._walk_to_stand(table)
         # from where the robot comes first; a goal in an obstacle (an object by the wall or

@@ -2529,6 +2529,30 @@ def test_a_long_box_turned_off_the_view_is_stood_at_end_on_and_taken() -> None:
     assert ("grasp", "cracker_box") in house.calls
 
 
+def test_an_end_on_walk_goal_near_something_is_walked_farther_out_or_later() -> None:
+    # seed-113: the end-on goal 0.86 m out was "too close to an obstacle", and the next
+    # try stood square to the table again (four probes "turned -85 deg", given up)
+    things = _things()
+    box = Thing("cracker_box", 3, (6.96, 2.05, 0.506), on_table=True)
+    things[2] = box
+    house = FakeHouse(things)
+    house.long_axis["cracker_box"] = math.radians(-14.6)
+    h = math.radians(-14.6)
+    out = CFG.task.probe_standoff + CFG.task.side_probe_back
+    house.blocked_goals = [(6.96 - out * math.cos(h), 2.05 - out * math.sin(h))]
+    report = _task(house).run()
+    rec = _record(report, "cracker_box")
+    assert rec.placed, rec.failures
+    assert len(rec.failures) == 1  # the turned probe only; the blocked goal cost nothing
+    walks = [
+        a
+        for what, a in house.calls
+        if what == "navigate_to" and isinstance(a, tuple) and abs(wrap(a[2] - h)) < 0.02
+    ]
+    assert len(walks) == 2  # the blocked goal, then 0.25 m farther out
+    assert math.dist(walks[1][:2], box.position[:2]) == pytest.approx(out + 0.25, abs=1e-6)
+
+
 def test_a_long_box_whose_ends_lie_under_the_table_is_given_up_at_once() -> None:
     # seed-120: the box 0.35 m in from the table's west end, turned 68 deg off the view:
     # the end's grasp stance stands 3 cm out, the arm's mount under the top (three
