@@ -1661,7 +1661,13 @@ class TidyTask:
                     probe.standoff,
                     self._facing(rec, probe.standoff),
                 )
-        if not out.ok and FOOTPRINT in out.reason and table is not None:
+        if not out.ok and FOOTPRINT in out.reason and table is not None and rec.end_on:
+            # stood at end on, the square stance's slants would show its wide side again
+            # (seed-113: probes from a slant, "turned -85 deg", four times): the walk to
+            # the end-on stance is due again, from wherever the robot stands then
+            with self._lock:
+                rec.end_walk = True
+        elif not out.ok and FOOTPRINT in out.reason and table is not None:
             # square to the table the stance meets a leg (paper-5: a mug 13 cm in from the
             # kitchen table's end, stopped four times and given up): stand turned about
             # the object, the stance moved toward the table's middle, between its legs.

@@ -2553,6 +2553,33 @@ def test_an_end_on_walk_goal_near_something_is_walked_farther_out_or_later() -> 
     assert math.dist(walks[1][:2], (6.96, 2.05)) == pytest.approx(out + 0.25, abs=1e-6)
 
 
+def test_an_end_on_stance_stopped_by_furniture_is_not_turned_square_again() -> None:
+    # seed-113 (second run): the end-on approach met the footprint guard, and the table
+    # slants then stood it nearly square: four probes saw the box's wide side
+    things = _things()
+    things[2] = Thing("cracker_box", 3, (6.96, 2.05, 0.506), on_table=True)
+    house = FakeHouse(things)
+    house.long_axis["cracker_box"] = math.radians(-14.6)
+    h = math.radians(-15.0)  # (perception's turn is in whole degrees)
+    out = CFG.task.probe_standoff + CFG.task.side_probe_back
+    stance = (6.96 - out * math.cos(h), 2.05 - out * math.sin(h))
+    house.furniture = [(stance[0], stance[1] - 0.25)]
+    report = _task(house).run()
+    rec = _record(report, "cracker_box")
+    assert not rec.placed
+    square = PLACES["kitchen_table"].stand[2]
+    refused = next(
+        i
+        for i, (what, a) in enumerate(house.calls)
+        if what == "estimate_grasp" and a[0] == "cracker_box"
+    )
+    later = [
+        a[2] for what, a in house.calls[refused:] if what == "approach" and a[0] == (6.96, 2.05)
+    ]
+    assert later and all(abs(wrap(x - h)) < 0.02 for x in later), later
+    assert all(abs(wrap(x - square)) > 1.0 for x in later)
+
+
 def test_a_long_box_whose_ends_lie_under_the_table_is_given_up_at_once() -> None:
     # seed-120: the box 0.35 m in from the table's west end, turned 68 deg off the view:
     # the end's grasp stance stands 3 cm out, the arm's mount under the top (three
