@@ -562,6 +562,12 @@ def _dist(a: Sequence[float], b: Sequence[float]) -> float:
     return math.hypot(a[0] - b[0], a[1] - b[1])
 
 
+def _bad_goal(reason: str) -> bool:
+    """Whether a walk ended because its goal lies in (or too near) an obstacle: refused
+    before it started, or found so on the way."""
+    return reason.startswith(REFUSED_GOAL) or any(b in reason for b in BAD_GOAL)
+
+
 class TidyTask:
     """One tidy-up trial. Construct, then :meth:`run` (blocking; from one thread).
 
@@ -842,7 +848,7 @@ class TidyTask:
             out = self.robot.navigate_to(pose=goal)
             if not out.ok and _dist(self._pose(), goal) < self.cfg.stage_accept:
                 return Outcome(True)
-            if out.ok or not any(r in out.reason for r in BAD_GOAL):
+            if out.ok or not _bad_goal(out.reason):
                 return out
         return out
 
@@ -1582,7 +1588,7 @@ class TidyTask:
                     with self._lock:
                         rec.end_walk = False
                     return out
-                if not any(b in out.reason for b in (REFUSED_GOAL, *BAD_GOAL)):
+                if not _bad_goal(out.reason):
                     return out
             return out
         if table is not None:
@@ -1605,7 +1611,7 @@ class TidyTask:
                 if any(_in_box(o, goal, self.cfg.feet_box) for o in others):
                     continue  # it would stand on another object
                 out = self.robot.navigate_to(pose=goal)
-                bad = out.reason.startswith(REFUSED_GOAL) or any(b in out.reason for b in BAD_GOAL)
+                bad = _bad_goal(out.reason)
                 if out.ok or not bad:
                     return out
         return out
@@ -1620,7 +1626,7 @@ class TidyTask:
         if walked:
             self._posture(self.cfg.walk_posture)
             out = self._walk_near(rec, standoff=probe.standoff)
-            if not out.ok and any(b in out.reason for b in BAD_GOAL):
+            if not out.ok and _bad_goal(out.reason):
                 # every walk goal by it is in an obstacle now: what makes it so may be gone
                 # later (an object's track left where it was picked up from), a retry now
                 # is not (seed-120: a tennis ball's four attempts in 0.3 s; seed-109: a

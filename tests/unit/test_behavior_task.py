@@ -174,6 +174,7 @@ class FakeHouse:
         # and stops a walk whose goal the LiDAR finds too close to one on the way
         self.refusal = "rejected: the goal is in an obstacle or too close to one"
         self.blocked_goals: list[tuple[float, float]] = []  # walk goals found too near something
+        self.blocked_reason = "blocked: goal too close to an obstacle"  # (found on the way)
         # label -> s: walk goals within 1.1 m of it (once seen) are refused as too close to
         # an obstacle, for this long after the first such refusal (then clear)
         self.refuse_near_for: dict[str, float] = {}
@@ -423,7 +424,9 @@ class FakeHouse:
                 if self.t < until:
                     return Outcome(False, "blocked: goal too close to an obstacle")
         if pose is not None and any(math.dist(pose[:2], b) < 0.1 for b in self.blocked_goals):
-            return Outcome(False, "blocked: goal too close to an obstacle")
+            return Outcome(
+                False, self.blocked_reason, rejected=self.blocked_reason.startswith("rej")
+            )
         for label, n in self.refuse_near.items():
             t = next(x for x in self.things.values() if x.label == label)
             seen = t.track_id in self.memory  # (a viewpoint walk before it was seen is fine)
@@ -1563,10 +1566,19 @@ def test_a_place_whose_fingers_close_on_it_again_is_tried_again_on_the_spot() ->
     assert all(r.placed for r in report.objects)
 
 
-def test_a_staging_pose_too_near_an_obstacle_is_moved_toward_the_stand() -> None:
+@pytest.mark.parametrize(
+    "why",
+    [
+        "blocked: goal too close to an obstacle",
+        "rejected: the goal is in an obstacle or too close to one",
+    ],
+)
+def test_a_staging_pose_too_near_an_obstacle_is_moved_toward_the_stand(why: str) -> None:
     """seed-111: a soup can lay 15 cm from the green box's staging pose; the four walks
-    there were refused, and the baseball was put down and given up."""
+    there were refused, and the baseball was put down and given up. Found on the way or
+    refused before the walk (navigation's node says "rejected: the goal is in ...")."""
     house = FakeHouse([_things()[3]])
+    house.blocked_reason = why
     sx, sy, syaw = PLACES["green_box"].stand
     back = CFG.task.stage_back
     house.blocked_goals = [(sx - back * math.cos(syaw), sy - back * math.sin(syaw))]
