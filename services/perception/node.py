@@ -194,7 +194,7 @@ class PerceptionNode(Service):
         table's stand, refused every walk to that table after the can was placed). The ids
         taken up before this perception started are not its own (a restart numbers its
         tracks afresh): the first message only says which they are."""
-        ids = {int(t) for t, g in zip(p.object_track_ids, p.object_grasped, strict=False) if g}
+        ids = {int(t) for t, g in zip(p.object_track_ids, p.object_grasped, strict=True) if g}
         with self.lock:
             if self.taken is None:
                 self.taken = ids
