@@ -214,6 +214,25 @@ class DepositSpec:
     # it; paper-1 put the marker onto the spoon in the pencil case, and the spoon was
     # still rocking when the trial ended.
     slots: tuple[tuple[float, float], ...] = ((0.0, 0.0),)
+    # m: the base comes no nearer the place's target than this (along the stand's
+    # heading) when it steps in toward a release point out of reach; 0: no bound. On a
+    # table: the LiDAR housing on the trunk's front top stands 5 mm above the table top's
+    # underside, and pressed under it (the full stack, a sugar box over the tray's far row)
+    # the trunk tipped 13 deg and the box stuck in the fingers.
+    min_standoff: float = 0.0
+
+    def stance(self, place: Place, point: Point3) -> float:
+        """The distance to stand from ``point`` (a release point of ``place``): ``reach``,
+        or farther where that comes nearer the target than ``min_standoff``."""
+        return max(self.reach, self.nearest_release(place, point))
+
+    def nearest_release(self, place: Place, point: Point3) -> float:
+        """The shortest distance from the base to ``point`` (a release point of
+        ``place``, facing it from its stand) that keeps ``min_standoff``."""
+        heading = place.stand[2]
+        ahead = (math.cos(heading), math.sin(heading))
+        beyond = (place.target[0] - point[0]) * ahead[0] + (place.target[1] - point[1]) * ahead[1]
+        return self.min_standoff - beyond
 
     def release_point(self, place: Place, n: int) -> Point3:
         """Where (map) the ``n``-th object put into ``place`` (from 0) is released, facing
@@ -2068,9 +2087,11 @@ class TidyTask:
     def _place(self) -> Step:
         rec = self.target
         assert rec is not None
-        dep, _ = self._deposit()
+        dep, place = self._deposit()
         point, heading, yaw = self._release_point()
-        out = self.robot.approach((point[0], point[1]), dep.reach, heading, loose=True)
+        out = self.robot.approach(
+            (point[0], point[1]), dep.stance(place, point), heading, loose=True
+        )
         if not out.ok and FOOTPRINT in out.reason:
             # this slot's stance meets the furniture (seed-114: the tray's far row, a leg of
             # its table by the trunk's corner; the same stance was walked to again, then
@@ -2078,7 +2099,9 @@ class TidyTask:
             self.slot_skips[id(rec)] = self.slot_skips.get(id(rec), 0) + 1
             point, heading, yaw = self._release_point()
             self._say(f"{rec.name}: the slot's stance is blocked: the next slot")
-            out = self.robot.approach((point[0], point[1]), dep.reach, heading, loose=True)
+            out = self.robot.approach(
+                (point[0], point[1]), dep.stance(place, point), heading, loose=True
+            )
         if not out.ok and UNSETTLED not in out.reason:
             return self._give_up_or(Step.PLACE, f"stand: {out.reason}", Step.CARRY)
         stuck = 0
@@ -2096,7 +2119,9 @@ class TidyTask:
                     self.slot_skips[id(rec)] = self.slot_skips.get(id(rec), 0) + 1
                     point, heading, yaw = self._release_point()
                     self._say(f"{rec.name} stuck in the fingers: the next slot")
-                    self.robot.approach((point[0], point[1]), dep.reach, heading, loose=True)
+                    self.robot.approach(
+                        (point[0], point[1]), dep.stance(place, point), heading, loose=True
+                    )
                 continue
             reach = [r for r in (TOO_FAR, *TOO_CLOSE) if r in out.reason]
             if not out.rejected or not reach:
@@ -2104,7 +2129,14 @@ class TidyTask:
             # out of reach: a step in (or back) and ask again
             now_dist = _dist(self._pose(), point)
             step = -self.cfg.place_step if reach[0] == TOO_FAR else self.cfg.place_step
-            self.robot.approach((point[0], point[1]), max(now_dist + step, 0.1), heading, True)
+            goal = max(now_dist + step, 0.1)
+            if reach[0] == TOO_FAR:
+                goal = max(goal, dep.nearest_release(place, point))
+                if now_dist - goal < self.cfg.place_blocked_progress:
+                    # no nearer without the trunk under the furniture: another slot
+                    why = f"{out.reason}; nearer, the trunk goes under the furniture"
+                    return self._stance_blocked(point, heading, why)
+            self.robot.approach((point[0], point[1]), goal, heading, True)
             # a step in that got it no nearer: the stance is blocked
             if reach[0] == TOO_FAR and (
                 now_dist - _dist(self._pose(), point) < self.cfg.place_blocked_progress

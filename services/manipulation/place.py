@@ -4,7 +4,8 @@ Goal: the region's opening centre ``position`` (body frame; z = the rim, the hig
 the object must clear) and the object's ``hang`` below the tool centre (known from the
 grasp). Sequence: moveCOM sideways so the point lies in the arm plane; joint move to a
 transit pose ``transit_clearance`` above the release pose; straight line down to the
-release pose (object bottom ``place_release_z`` above the rim); open; straight line up
+release pose (object bottom ``place_release_z`` above the rim, or ``place_min_release_z``
+where that is out of reach); open; straight line up
 ``retract_height``; verify empty by closing the fingers - they must meet (a stuck object
 stalls them); restore the body pose. An object the check closes on may only stand between
 the open fingers (it landed upright, or leaning on a wall, with its top still between
@@ -15,6 +16,7 @@ was carried on as "let go" and released later in the pencil case).
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -99,6 +101,12 @@ def plan_place(
     # released from a leaning tool lands on its edge and tips out of the tray. Too far
     # then is a rejection (too_far) and the task steps closer.
     max_tilt = min(0.6, math.asin(min(1.0, g.place_max_lean / max(hang, 1e-3))))
+    # Before leaning, release lower (object bottom place_min_release_z over the rim): a
+    # sugar box hanging 14.5 cm below the vertical tool over the tray's far row was 5 cm
+    # out of reach from the stance the table's edge allows; the steps closer put the LiDAR
+    # housing under the table top (the trunk tipped, the box stuck in the fingers), and
+    # released leaning 0.1 rad it landed on its edge and fell back against the fingers.
+    heights = dict.fromkeys((g.place_release_z, min(g.place_min_release_z, g.place_release_z)))
     for tilt in np.arange(0.0, max_tilt + 0.01, 0.1):
         pt = pitch - tilt if pitch > 0.3 else pitch
         # where the object's middle is from the tool centre at this pose (arm_base axes)
@@ -106,10 +114,10 @@ def plan_place(
         x = target.x - float(mid[0])
         lim = g.max_lateral_shift
         y_total = float(np.clip(y_asked - mid[1], -lim, lim))
-        for rise in (0.0, 0.5 * g.max_rise, g.max_rise):
+        for release_z, rise in itertools.product(heights, (0.0, 0.5 * g.max_rise, g.max_rise)):
             if body.z_offset + rise > g.max_rise + 1e-9:
                 continue  # (a place that failed risen left the trunk up: paper-1 asked 6 cm)
-            z_rel = target.z - rise + hang + g.place_release_z
+            z_rel = target.z - rise + hang + release_z
             release = ArmTarget(x, z_rel, pt, roll)
             # approach and retract as high as reachable, at least 4 cm (fingertips clear)
             for up in (g.retract_height, 0.07, 0.04):

@@ -2626,3 +2626,31 @@ def test_an_object_whose_walk_goals_are_all_blocked_waits_while_others_are_taken
     # with nothing else left, the can is tried again at once (the task does not end on it)
     house.memory.pop(ball.track_id)
     assert task._choose_target().value == "approach" and task.target is can
+
+
+def test_a_step_in_toward_a_place_out_of_reach_keeps_the_trunk_out_from_under_the_table() -> None:
+    # a sugar box over the tray's far row was out of reach from the slot's stance; the
+    # steps in put the LiDAR housing under the table top (full stack: the trunk tipped
+    # 13 deg, the box stuck in the fingers). Near-row slots may be stepped toward, down to
+    # the deposit's min_standoff; a far-row one is not, and the next slot is tried (here
+    # the far row's other, then the first again).
+    things = [*_two_cans(), Thing("sugar_box", 3, (3.6, 1.2, 0.09))]
+    house = FakeHouse(things)
+    dep, tray = CFG.deposits["tray"], PLACES["tray"]
+    house.place_reach = dep.reach - 0.07  # only the steps in reach
+    ahead = (math.cos(tray.stand[2]), math.sin(tray.stand[2]))
+    standoffs = []
+    real_place = house.place
+
+    def place(position, yaw=None):
+        at = house.at
+        standoffs.append((tray.target[0] - at[0]) * ahead[0] + (tray.target[1] - at[1]) * ahead[1])
+        return real_place(position, yaw)
+
+    house.place = place  # type: ignore[method-assign]
+    report = _task(house).run()
+    assert min(standoffs) >= dep.min_standoff - 1e-3
+    assert all(r.placed for r in report.objects)  # near-row slots, reached by stepping in
+    # the third one's far-row stance is given up at once, without a step in
+    fails = [f.reason for r in report.objects for f in r.failures]
+    assert len(fails) == 2 and all("under the furniture" in f for f in fails), fails
