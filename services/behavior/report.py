@@ -59,6 +59,7 @@ class ObjectRecord:
     close_label: str = ""
     # s (robot time): not taken up again before this (its walk goals were all blocked)
     wait_until: float = -math.inf
+    slot: int = -1  # the deposit slot it was (last) to be released at; -1: none yet
     time_spent: float = 0.0  # s of robot time spent on it (approach to let go)
     failures: list[Failure] = field(default_factory=list)
     first_position: Point3 = (math.nan, math.nan, math.nan)  # where it was first seen

@@ -220,6 +220,34 @@ class DepositSpec:
     # underside, and pressed under it (the full stack, a sugar box over the tray's far row)
     # the trunk tipped 13 deg and the box stuck in the fingers.
     min_standoff: float = 0.0
+    # m: objects taller than this take the free slot nearest the robot first, the others
+    # the farthest first (inf: every object the first free slot in the list); either way,
+    # before a slot behind a taken one (the held object passes over it on the way in). A
+    # cracker box hanging 18 cm below the tool reaches the tray's near row only (a step in
+    # toward its far row would put the trunk under the table); the cans reach either.
+    tall_above: float = math.inf
+
+    def slot_order(self, height: float, taken: Collection[int] = ()) -> list[int]:
+        """The free slots (indices; all of them when none is free) in the order an object
+        ``height`` tall takes them, given the ``taken`` ones."""
+        order = [i for i in range(len(self.slots)) if i not in taken] or list(
+            range(len(self.slots))
+        )
+        if math.isinf(self.tall_above):
+            return order
+        near_first = height > self.tall_above
+
+        def behind_taken(i: int) -> bool:
+            side, toward = self.slots[i]
+            return any(
+                abs(self.slots[j][0] - side) < 0.05 and self.slots[j][1] > toward for j in taken
+            )
+
+        def key(i: int) -> tuple[bool, float]:
+            toward = self.slots[i][1]
+            return behind_taken(i), -toward if near_first else toward
+
+        return sorted(order, key=key)
 
     def stance(self, place: Place, point: Point3) -> float:
         """The distance to stand from ``point`` (a release point of ``place``): ``reach``,
@@ -2052,12 +2080,16 @@ class TidyTask:
         rec = self.target
         assert rec is not None
         dep, place = self._deposit()
-        # the slot: one per object already put here (the target's own record not counted)
-        n = sum(
-            1 for r in self.report.objects if r is not rec and r.placed and r.place == rec.place
-        )
-        n += self.slot_skips.get(id(rec), 0)
-        point = dep.release_point(place, n)
+        # the slot: the first free one in the order this object takes them (DepositSpec.
+        # slot_order), skipped ones passed over; every slot taken: from the first again
+        taken = {
+            r.slot
+            for r in self.report.objects
+            if r is not rec and r.placed and r.place == rec.place and r.slot >= 0
+        }
+        free = dep.slot_order(self.classes[rec.label].height, taken) or [0]
+        rec.slot = free[self.slot_skips.get(id(rec), 0) % len(free)]
+        point = dep.release_point(place, rec.slot)
         # a long object goes in along the place's long side, across the robot; the others
         # with the fingers along the body y (yaw 0): the carry turned the wrist (manipulation's
         # held_across), the place turns it back

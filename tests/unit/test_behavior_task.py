@@ -19,6 +19,7 @@ The task runs on the real places file, object catalogue and ``configs/behavior.t
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -680,6 +681,7 @@ def _things() -> list[Thing]:
 
 def _task(house: FakeHouse, **kw: object) -> TidyTask:
     cfg = kw.pop("cfg", CFG.task)
+    deposits = kw.pop("deposits", CFG.deposits)
     return TidyTask(
         house,
         CLASSES,
@@ -687,7 +689,7 @@ def _task(house: FakeHouse, **kw: object) -> TidyTask:
         cfg,  # type: ignore[arg-type]
         CFG.drawers,
         CFG.search,
-        CFG.deposits,
+        deposits,  # type: ignore[arg-type]
         cancelled=house.cancelled,
         **kw,  # type: ignore[arg-type]
     )
@@ -2632,11 +2634,12 @@ def test_a_step_in_toward_a_place_out_of_reach_keeps_the_trunk_out_from_under_th
     # a sugar box over the tray's far row was out of reach from the slot's stance; the
     # steps in put the LiDAR housing under the table top (full stack: the trunk tipped
     # 13 deg, the box stuck in the fingers). Near-row slots may be stepped toward, down to
-    # the deposit's min_standoff; a far-row one is not, and the next slot is tried (here
-    # the far row's other, then the first again).
+    # the deposit's min_standoff; a far-row one is not, and the next free slot is tried
+    # (here the slots are taken in list order: the far row's other).
     things = [*_two_cans(), Thing("sugar_box", 3, (3.6, 1.2, 0.09))]
     house = FakeHouse(things)
     dep, tray = CFG.deposits["tray"], PLACES["tray"]
+    in_order = {**CFG.deposits, "tray": dataclasses.replace(dep, tall_above=math.inf)}
     house.place_reach = dep.reach - 0.07  # only the steps in reach
     ahead = (math.cos(tray.stand[2]), math.sin(tray.stand[2]))
     standoffs = []
@@ -2648,9 +2651,34 @@ def test_a_step_in_toward_a_place_out_of_reach_keeps_the_trunk_out_from_under_th
         return real_place(position, yaw)
 
     house.place = place  # type: ignore[method-assign]
-    report = _task(house).run()
+    report = _task(house, deposits=in_order).run()
     assert min(standoffs) >= dep.min_standoff - 1e-3
-    assert all(r.placed for r in report.objects)  # near-row slots, reached by stepping in
-    # the third one's far-row stance is given up at once, without a step in
-    fails = [f.reason for r in report.objects for f in r.failures]
-    assert len(fails) == 2 and all("under the furniture" in f for f in fails), fails
+    # two in the near row, reached by stepping in; the third object's far-row stances
+    # each given up at once, without a step in, and it is not dropped onto another
+    placed = [r for r in report.objects if r.placed]
+    assert sorted(r.slot for r in placed) == [0, 1]
+    (third,) = [r for r in report.objects if not r.placed]
+    assert third.failures and all("under the furniture" in f.reason for f in third.failures)
+
+
+def test_tall_objects_take_the_trays_near_row_and_the_cans_its_far_row_first() -> None:
+    tray = CFG.deposits["tray"]
+    tall, short = CLASSES["cracker_box"].height, CLASSES["tomato_soup_can"].height
+    assert short < tray.tall_above < CLASSES["sugar_box"].height < tall
+    near = [i for i, (_, toward) in enumerate(tray.slots) if toward == 0.0]
+    far = [i for i, (_, toward) in enumerate(tray.slots) if toward < 0.0]
+    assert set(tray.slot_order(tall)[:2]) == set(near)
+    assert set(tray.slot_order(short)[:2]) == set(far)
+    # a can after a box in the near row: the far slot not behind it
+    behind = next(j for j in far if tray.slots[j][0] == tray.slots[near[0]][0])
+    assert tray.slot_order(short, {near[0]})[0] == next(j for j in far if j != behind)
+    # a box after the cans: the near row; everything taken: from the first again
+    assert tray.slot_order(tall, set(far))[0] in near
+    assert tray.slot_order(tall, set(range(4))) == tray.slot_order(tall)
+    # the full task: two cans, then the cracker box (which reaches the near row only)
+    things = [*_two_cans(), Thing("cracker_box", 3, (3.6, 1.2, 0.11))]
+    house = FakeHouse(things)
+    report = _task(house).run()
+    assert all(r.placed for r in report.objects)
+    assert _record(report, "cracker_box").slot in near
+    assert {_record(report, n).slot for n in ("tomato_soup_can", "coffee_can")} == set(far)
