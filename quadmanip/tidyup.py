@@ -76,6 +76,33 @@ class ObjectReport:
     # the behavior's records merged into this object: where each was last believed (map
     # xy), its time and whether it was placed; a second record is a twin track
     records: list[dict[str, Any]] = field(default_factory=list)
+    # each time the judge saw it leave its place after being in it: when (sim s of the
+    # trial), during which task step, and where it went (seed-124: a padlock put into the
+    # drawer ended on the floor in front of it, and nothing said when)
+    left_place: list[str] = field(default_factory=list)
+
+
+class PlaceWatch:
+    """Follows the judge's reports during a trial: when an object judged in place is next
+    judged elsewhere, and what the task was doing then."""
+
+    def __init__(self) -> None:
+        self.where: dict[str, str] = {}
+        self.events: dict[str, list[str]] = {}
+        self._stamp = -math.inf
+
+    def update(self, judge: m.JudgeReport | None, step: str, trial_s: float) -> None:
+        """Reads one judge report (repeats of the last one are skipped)."""
+        if judge is None or float(judge.stamp) <= self._stamp:
+            return
+        self._stamp = float(judge.stamp)
+        for name, loc in zip(judge.objects, judge.locations, strict=True):
+            before = self.where.get(name)
+            if before == "in_place" and loc != "in_place":
+                self.events.setdefault(name, []).append(
+                    f"left at {trial_s:.1f} s during '{step}': {loc}"
+                )
+            self.where[name] = loc
 
 
 @dataclass
@@ -147,6 +174,8 @@ class TidyReport:
             why = o.judge_note if not o.placed else ""
             if o.failures:
                 why = "; ".join([*o.failures[-2:], why] if why else o.failures[-2:])
+            if o.left_place and not o.placed:
+                why = f"in place, then {o.left_place[-1]}; {why}"
             rows.append(
                 (
                     o.name,
@@ -282,6 +311,7 @@ class TidyRun:
         self._cpu_done: dict[str, float] = {}  # CPU seconds of children's earlier lives
         self._cpu_last: dict[str, tuple[int, float]] = {}  # name -> (pid, CPU seconds)
         self._tilted = False
+        self.place_watch = PlaceWatch()
 
     # ------------------------------------------------------------------ stack
     def _service_args(self, scenario_file: Path) -> dict[str, list[str]]:
@@ -405,6 +435,7 @@ class TidyRun:
         w_run0 = time.monotonic()
         last_line, last_print, last_cpu = "", 0.0, 0.0
         faults = list(self.faults)
+        watch = self.place_watch = PlaceWatch()
         while True:
             self._check_alive()
             p = progress.get()
@@ -413,6 +444,7 @@ class TidyRun:
             if faults and now_sim - sim0 >= faults[0][1]:
                 self._kill(faults.pop(0)[0], now_sim)
             self._count_falls(base.get())
+            watch.update(judge.get(), str(p.step) if p is not None else "", now_sim - sim0)
             if self.film is not None and p is not None:
                 self.film.on_step(now_sim - sim0, str(p.step))
             pose_now = nav_pose.get()
@@ -544,6 +576,7 @@ class TidyRun:
                 if len(judge.positions) == len(judge.objects):
                     o.end_xyz = [round(float(v), 3) for v in judge.positions[i]]
                 o.placed = name in list(judge.in_place) and bool(judge.valid)
+            o.left_place = list(self.place_watch.events.get(name, []))
             rep.objects.append(o)
         rep.unmatched = [
             {

@@ -3,6 +3,7 @@ benchmark's summary over trials."""
 
 from __future__ import annotations
 
+import dataclasses
 from types import SimpleNamespace
 
 import numpy as np
@@ -228,3 +229,26 @@ def test_the_benchmark_runs_the_seeds_alone_when_only_seeds_are_given() -> None:
     assert trial_names(None, []) == [f"paper-{i}" for i in range(1, 6)]
     assert trial_names(["paper-3"], [5]) == ["paper-3", "seed-5"]
     assert trial_names([], []) == []
+
+
+def test_an_object_that_leaves_its_place_says_when_and_during_which_step():
+    from quadmanip.tidyup import PlaceWatch
+
+    def judge(stamp: float, where: list[str]) -> m.JudgeReport:
+        names = ["spoon", "bowl"]
+        placed = [n for n, w in zip(names, where, strict=True) if w == "in_place"]
+        return dataclasses.replace(_judge(names, placed), stamp=stamp, locations=where)
+
+    watch = PlaceWatch()
+    watch.update(judge(1.0, ["floor", "floor"]), "search: living_floor", 1.0)
+    watch.update(judge(2.0, ["in_place", "floor"]), "verify: spoon#3", 2.0)
+    watch.update(judge(2.0, ["floor", "floor"]), "place: bowl#4", 2.5)  # a repeat: skipped
+    watch.update(judge(3.0, ["in_place", "held"]), "grasp: bowl#4", 3.0)
+    watch.update(judge(4.0, ["floor", "held"]), "place: bowl#4", 4.0)
+    assert watch.events == {"spoon": ["left at 4.0 s during 'place: bowl#4': floor"]}
+    run = TidyRun(get_scenario("short-0"), log=None)  # type: ignore[arg-type]
+    run.place_watch = watch
+    run._score(_progress(), _judge(["spoon", "bowl"], []))
+    by = {o.name: o for o in run.report.objects}
+    assert by["spoon"].left_place == watch.events["spoon"] and by["bowl"].left_place == []
+    assert "in place, then left at 4.0 s during 'place: bowl#4'" in run.report.table()
