@@ -328,6 +328,14 @@ class TaskConfig:
     # rad: a table object whose square stance is stopped by furniture (a table leg by the
     # object) is approached turned by these about it, toward the table's middle
     table_slants: tuple[float, ...] = (0.35, 0.6)
+    # m: square to a table, the robot's axis stays this far in from the table's end, the
+    # stance moved toward the middle by at most table_end_shift (the grasp shifts the
+    # trunk sideways up to 6 cm): the approach's guard keeps its footprint (half-width
+    # 0.125 m + 0.06 m margin) clear of the leg, whose inner face is 6 cm in from the end
+    # (seed-124: a sugar box 23.5 cm in; each step in was stopped by the leg 0.27 m off at
+    # 33 deg, 3.8 cm inside the footprint, and it was given up)
+    table_end_clear: float = 0.255
+    table_end_shift: float = 0.045
     # m: a long box on a table that perception sees turned off the view (a cracker box
     # showing its 16 cm side) is stood at along its long side, from the end whose grasp
     # stance lies farthest out from under the table, if its base stands at least this far
@@ -1688,11 +1696,9 @@ class TidyTask:
         # on a table, navigation may turn the stance about the object off the square one
         # to keep the trunk clear of a leg (its map holds them): once, then kept
         turn_free = table is not None and rec.table_heading is None
+        aim = self._square_target(rec, rec.position)
         out = self.robot.approach(
-            (rec.position[0], rec.position[1]),
-            probe.standoff,
-            self._facing(rec, probe.standoff),
-            turn_free=turn_free,
+            (aim[0], aim[1]), probe.standoff, self._facing(rec, probe.standoff), turn_free=turn_free
         )
         if out.ok and turn_free and table is not None:
             self._keep_turned_stance(rec, table)
@@ -1751,6 +1757,25 @@ class TidyTask:
         if abs(wrap(pose[2] - table.stand[2])) > 0.5 * min(self.cfg.table_slants, default=0.3):
             with self._lock:
                 rec.table_heading = pose[2]
+
+    def _square_target(self, rec: ObjectRecord, point: Sequence[float]) -> Point3:
+        """The point to approach square to ``rec``'s table for an object at ``point``:
+        moved toward the table's middle (``table_end_shift`` at most) so the robot's axis
+        stands ``table_end_clear`` in from its end; ``point`` itself off a table, stood at
+        a slant or end on, or far from the ends."""
+        table = self._table_of(rec)
+        p = (float(point[0]), float(point[1]), float(point[2]) if len(point) > 2 else 0.0)
+        if table is None or rec.table_heading is not None:
+            return p
+        h = table.stand[2]
+        along = (-math.sin(h), math.cos(h))  # the edge's direction
+        half = 0.5 * (abs(along[0]) * table.size[0] + abs(along[1]) * table.size[1])
+        d = (p[0] - table.target[0]) * along[0] + (p[1] - table.target[1]) * along[1]
+        shift = min(max(self.cfg.table_end_clear - (half - abs(d)), 0.0), self.cfg.table_end_shift)
+        if shift <= 0.0:
+            return p
+        toward = -1.0 if d > 0.0 else 1.0  # toward the middle
+        return (p[0] + toward * shift * along[0], p[1] + toward * shift * along[1], p[2])
 
     def _table_slants(self, rec: ObjectRecord, table: Place) -> list[float]:
         """Headings turned from the table's square one by ``table_slants``, the way that
@@ -1824,11 +1849,8 @@ class TidyTask:
             rec.estimated = True
         if probe.horizontal:
             # probed from farther back: step in so the grasp point is in reach
-            out = self.robot.approach(
-                (plan.position_map[0], plan.position_map[1]),
-                self.cfg.probe_standoff,
-                self._facing(rec),
-            )
+            aim = self._square_target(rec, plan.position_map)
+            out = self.robot.approach((aim[0], aim[1]), self.cfg.probe_standoff, self._facing(rec))
             if not out.ok and FOOTPRINT in out.reason and self._slant_on(rec):
                 # the step in met a leg the stance farther back kept clear of (seed-115, a
                 # coffee can 23 cm from the kitchen table's end: four side probes, each

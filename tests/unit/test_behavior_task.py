@@ -2452,7 +2452,12 @@ def _by_a_table_leg(
     house = FakeHouse(things)
     house.furniture = [leg]
     report = _task(house).run()
-    heads = [a[2] for what, a in house.calls if what == "approach" and a[0][:2] == (2.1, 3.2)]
+    # (a square approach aims up to table_end_shift toward the table's middle)
+    heads = [
+        a[2]
+        for what, a in house.calls
+        if what == "approach" and math.dist(a[0][:2], (2.1, 3.2)) <= CFG.task.table_end_shift + 1e-9
+    ]
     return report, heads
 
 
@@ -2460,13 +2465,42 @@ def test_a_tall_table_object_whose_step_in_meets_a_leg_is_probed_again_turned() 
     # seed-115: a coffee can 23 cm from the kitchen table's end; the side probe's stance
     # 0.86 m back was clear, its step in to 0.36 m met the leg, four times, and the can
     # was given up
-    report, heads = _by_a_table_leg("coffee_can", 0.47, (1.95, 3.15))
+    # (the leg 5 cm nearer than in the test below: the stance's shift does not clear it)
+    report, heads = _by_a_table_leg("coffee_can", 0.47, (2.0, 3.15))
     rec = _record(report, "coffee_can")
     assert rec.placed, rec.failures
     square = PLACES["living_table"].stand[2]
     assert heads[0] == pytest.approx(square)  # square first
     assert heads[-1] != pytest.approx(square)  # the grasp's step in, turned
     assert not any("step in" in f.reason for f in rec.failures)
+
+
+def test_a_table_object_near_the_tables_end_is_stood_at_moved_toward_the_middle() -> None:
+    # seed-124: a sugar box 23.5 cm in from the living table's end; every square step in
+    # was stopped by the leg 3.8 cm inside the footprint, the slants too, and it was given
+    # up. The square stance moves toward the table's middle (the grasp shifts the trunk
+    # back), its axis table_end_clear in from the end, at most table_end_shift.
+    report, heads = _by_a_table_leg("coffee_can", 0.47, (1.95, 3.15))
+    rec = _record(report, "coffee_can")
+    assert rec.placed and rec.failures == []
+    square = PLACES["living_table"].stand[2]
+    assert heads and all(h == pytest.approx(square) for h in heads)  # never turned
+    table, c = PLACES["living_table"], CFG.task
+    west_end = table.target[0] - table.size[0] / 2  # the object lies 0.1 m in from it
+    assert c.table_end_clear - (2.1 - west_end) > c.table_end_shift  # the shift is capped
+    task = _task(FakeHouse([]))
+    near = ObjectRecord("coffee_can", 3, "tray", (2.1, 3.2, 0.47), t_found=0.0)
+    assert task._square_target(near, near.position) == pytest.approx(
+        (2.1 + c.table_end_shift, 3.2, 0.47)
+    )
+    # 0.23 m in: shifted until its axis stands table_end_clear in; the middle: not at all
+    x = west_end + 0.23
+    assert task._square_target(near, (x, 3.2, 0.47))[0] == pytest.approx(
+        west_end + c.table_end_clear
+    )
+    assert task._square_target(near, (2.6, 3.2, 0.47))[0] == pytest.approx(2.6)
+    near.table_heading = square + 0.35  # stood at a slant: no shift
+    assert task._square_target(near, near.position)[0] == pytest.approx(2.1)
 
 
 def test_a_table_object_by_a_leg_is_approached_turned_toward_the_tables_middle() -> None:
