@@ -238,7 +238,7 @@ class FakeHouse:
         self.block_short = 0.06
         self.place_reach = 0.6  # m: a release point farther off is refused too_far
         # label -> reasons its next places fail with (not rejected: the arm was stopped)
-        self.place_failures: dict[str, list[str]] = {}
+        self.place_failures: dict[str, list[str | Outcome]] = {}
 
     # -------------------------------------------------------------- restarts
     def _strike(self, name: str) -> Outage | None:
@@ -620,7 +620,8 @@ class FakeHouse:
         if _bearing(self.at, position)[0] > self.place_reach:
             return Outcome(False, "too_far: out of reach", rejected=True)
         if self.place_failures.get(self.held.label):
-            return Outcome(False, self.place_failures[self.held.label].pop(0))
+            why = self.place_failures[self.held.label].pop(0)
+            return why if isinstance(why, Outcome) else Outcome(False, why)
         if self.sticky.get(self.held.label, 0) > 0:
             self.sticky[self.held.label] -= 1
             self.stale_grip_until = self.t + self.grip_lag
@@ -2716,3 +2717,18 @@ def test_tall_objects_take_the_trays_near_row_and_the_cans_its_far_row_first() -
     assert all(r.placed for r in report.objects)
     assert _record(report, "cracker_box").slot in near
     assert {_record(report, n).slot for n in ("tomato_soup_can", "coffee_can")} == set(far)
+
+
+def test_a_place_refused_as_too_far_to_the_side_faces_the_release_point_again() -> None:
+    # seed-124: after the stuck cracker box was opened over once more, the next place was
+    # refused (a body shift of 9 cm, limit 6) and the attempt was lost
+    house = FakeHouse(_things()[:1])
+    side = Outcome(False, "lateral_out_of_range: needs a body shift of -0.092 m", rejected=True)
+    house.place_failures = {"tomato_soup_can": [side]}
+    report = _task(house).run()
+    rec = _record(report, "tomato_soup_can")
+    assert rec.placed and rec.failures == []
+    places = [i for i, (what, _) in enumerate(house.calls) if what == "place"]
+    assert len(places) == 2
+    between = [what for what, _ in house.calls[places[0] : places[1]]]
+    assert "approach" in between  # it stood square to the release point again
