@@ -214,4 +214,4 @@ class DrawerPrimitive(Primitive):
                 if solve_ik(self.geom, nxt, q_ref=obs.q_arm, roll_symmetric=False).ok:
                     yield from self.line_to(nxt)
                     break
-        yield from self.move_body(0.0, 0.0, 0.0)
+        yield from self.move_body(0.0, 0.0, 0.0, settle=False)  # (as the place's end)

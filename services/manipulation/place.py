@@ -191,7 +191,11 @@ class PlacePrimitive(Primitive):
             yield from self.close_gripper()
         if self.monitor.state is GripState.HOLDING:
             raise PrimitiveFailed("object_stuck: the fingers still hold something after release")
-        yield from self.move_body(0.0, 0.0, 0.0, during=self.open_gripper())
+        # the trunk back to its stance, not waited for (the next action, a posture move or
+        # a walk, may run meanwhile: locomotion walks at its nominal height whatever the
+        # offset); the fingers stay closed, empty: the next grasp opens them as it reaches
+        # (1-1.3 s a place, about 13 s a trial)
+        yield from self.move_body(0.0, 0.0, 0.0, settle=False)
 
     def _transit(self) -> Script:
         """Up first, so the object clears whatever is between it and the region, then

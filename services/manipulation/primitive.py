@@ -371,12 +371,23 @@ class Primitive:
                 return
 
     def move_body(
-        self, x: float = 0.0, y: float = 0.0, z: float = 0.0, during: Script | None = None
+        self,
+        x: float = 0.0,
+        y: float = 0.0,
+        z: float = 0.0,
+        during: Script | None = None,
+        settle: bool = True,
     ) -> Script:
         """Requests a body offset (moveCOM) with a level trunk and gives locomotion time
         to reach it. ``during`` (a gripper move) runs while the trunk moves: the settle
-        time counts from the request, so a gripper that opens meanwhile costs no time."""
+        time counts from the request, so a gripper that opens meanwhile costs no time.
+        Without ``settle`` the request is sent and not waited for (a primitive's last
+        step, the trunk back to its stance with nothing in the fingers)."""
         new = BodyPoseRequest(x_offset=x, y_offset=y, z_offset=z)
+        if new != self.body and not settle:
+            self.body = new
+            yield [new]
+            return
         if new != self.body:
             assert self._last_obs is not None
             t_end = self._last_obs.t + self.cfg.grasp.body_settle_time

@@ -18,7 +18,7 @@ from quadmanip.services.manipulation.drawer import DrawerPrimitive, plan_drawer
 from quadmanip.services.manipulation.grasp import GraspPrimitive, plan_grasp
 from quadmanip.services.manipulation.place import PlacePrimitive, plan_place
 from quadmanip.services.manipulation.postures import resolve_postures
-from quadmanip.services.manipulation.primitive import PostureMove, Status
+from quadmanip.services.manipulation.primitive import BodyPoseRequest, PostureMove, Status
 from quadmanip.sim.world.objects import load_catalogue
 from quadmanip.testbench.manipulation_scenes import (
     TABLE_HEIGHT,
@@ -189,8 +189,20 @@ def test_a_spoon_held_at_its_bowl_is_placed_by_its_middle():
 @pytest.mark.parametrize(("name", "surface", "place", "cx", "yaw"), PLACES)
 def test_place_into_region(name, surface, place, cx, yaw):
     h, g, plan = _grasped_for_place(name, surface, place, cx, yaw)
+    requests: list[tuple[float, BodyPoseRequest]] = []
+    request_body = h.request_body
+
+    def record(req: BodyPoseRequest) -> None:
+        requests.append((float(h.data.time), req))
+        request_body(req)
+
+    h.request_body = record  # type: ignore[method-assign]
     p = h.run(PlacePrimitive(GEOM, CFG, plan, monitor=g.monitor, body=g.body), KP, KD, timeout=40.0)
     assert p.status is Status.SUCCEEDED, p.reason
+    # the trunk's way back to its stance is the place's last request, not waited for
+    t_back, back = requests[-1]
+    assert (back.x_offset, back.y_offset, back.z_offset) == (0.0, 0.0, 0.0)
+    assert p.t_end - t_back < 0.05
     _assert_in_container(h, name, surface, place, cx)
     assert p.t_end - p.t_start < 20.0
     _assert_honest(h)
