@@ -221,11 +221,11 @@ class DepositSpec:
     # the trunk tipped 13 deg and the box stuck in the fingers.
     min_standoff: float = 0.0
     # m: objects taller than this take the free slot nearest the robot first, the others
-    # the farthest first (inf: every object the first free slot in the list); either way,
+    # the farthest first (0: every object the first free slot in the list); either way,
     # before a slot behind a taken one (the held object passes over it on the way in). A
     # cracker box hanging 18 cm below the tool reaches the tray's near row only (a step in
     # toward its far row would put the trunk under the table); the cans reach either.
-    tall_above: float = math.inf
+    tall_above: float = 0.0
 
     def slot_order(self, height: float, taken: Collection[int] = ()) -> list[int]:
         """The free slots (indices; all of them when none is free) in the order an object
@@ -233,7 +233,7 @@ class DepositSpec:
         order = [i for i in range(len(self.slots)) if i not in taken] or list(
             range(len(self.slots))
         )
-        if math.isinf(self.tall_above):
+        if self.tall_above <= 0.0:
             return order
         near_first = height > self.tall_above
 

@@ -2674,7 +2674,7 @@ def test_a_step_in_toward_a_place_out_of_reach_keeps_the_trunk_out_from_under_th
     things = [*_two_cans(), Thing("sugar_box", 3, (3.6, 1.2, 0.09))]
     house = FakeHouse(things)
     dep, tray = CFG.deposits["tray"], PLACES["tray"]
-    in_order = {**CFG.deposits, "tray": dataclasses.replace(dep, tall_above=math.inf)}
+    in_order = {**CFG.deposits, "tray": dataclasses.replace(dep, tall_above=0.0)}
     house.place_reach = dep.reach - 0.07  # only the steps in reach
     ahead = (math.cos(tray.stand[2]), math.sin(tray.stand[2]))
     standoffs = []
