@@ -93,7 +93,7 @@ class GraspConfig:
     # Place: release height above the region's top surface and retract height.
     place_release_z: float = 0.06
     # ... this low where place_release_z is out of reach (a tall object over a far slot)
-    place_min_release_z: float = 0.0
+    place_min_release_z: float = 0.03
     retract_height: float = 0.10
     # Place: how far (m) the held object's bottom may swing sideways when the tool leans
     # forward to reach; a tall box released leaning lands on its edge and topples.

@@ -101,11 +101,11 @@ def plan_place(
     # released from a leaning tool lands on its edge and tips out of the tray. Too far
     # then is a rejection (too_far) and the task steps closer.
     max_tilt = min(0.6, math.asin(min(1.0, g.place_max_lean / max(hang, 1e-3))))
-    # Before leaning, release lower (object bottom place_min_release_z over the rim): a
-    # sugar box hanging 14.5 cm below the vertical tool over the tray's far row was 5 cm
-    # out of reach from the stance the table's edge allows; the steps closer put the LiDAR
-    # housing under the table top (the trunk tipped, the box stuck in the fingers), and
-    # released leaning 0.1 rad it landed on its edge and fell back against the fingers.
+    # Before leaning, release lower (object bottom place_min_release_z over the rim): the
+    # sugar box hanging 14.5 cm below the vertical tool was out of reach over the tray's
+    # near row from its stance, and the steps closer brought the trunk to the table's edge
+    # (one 34 deg trip after such a place, not explained). Released leaning 0.1 rad it
+    # landed on its edge and fell back against the fingers (a full-stack run).
     heights = dict.fromkeys((g.place_release_z, min(g.place_min_release_z, g.place_release_z)))
     for tilt in np.arange(0.0, max_tilt + 0.01, 0.1):
         pt = pitch - tilt if pitch > 0.3 else pitch
