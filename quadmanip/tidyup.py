@@ -86,9 +86,13 @@ class PlaceWatch:
     """Follows the judge's reports during a trial: when an object judged in place is next
     judged elsewhere, and what the task was doing then."""
 
+    #: the first transitions listed one by one; more (an object rocking in and out of the
+    #: judge's "at rest", seed-124's sugar box 20 times) are summed up in one line
+    shown = 2
+
     def __init__(self) -> None:
         self.where: dict[str, str] = {}
-        self.events: dict[str, list[str]] = {}
+        self._left: dict[str, list[str]] = {}
         self._stamp = -math.inf
 
     def update(self, judge: m.JudgeReport | None, step: str, trial_s: float) -> None:
@@ -97,12 +101,21 @@ class PlaceWatch:
             return
         self._stamp = float(judge.stamp)
         for name, loc in zip(judge.objects, judge.locations, strict=True):
-            before = self.where.get(name)
-            if before == "in_place" and loc != "in_place":
-                self.events.setdefault(name, []).append(
+            if self.where.get(name) == "in_place" and loc != "in_place":
+                self._left.setdefault(name, []).append(
                     f"left at {trial_s:.1f} s during '{step}': {loc}"
                 )
             self.where[name] = loc
+
+    @property
+    def events(self) -> dict[str, list[str]]:
+        """Per object, its departures from its place (the first ``shown``, then a sum)."""
+        out = {}
+        for name, left in self._left.items():
+            out[name] = left[: self.shown]
+            if len(left) > self.shown:
+                out[name].append(f"{len(left) - self.shown} more times, the last {left[-1]}")
+        return out
 
 
 @dataclass

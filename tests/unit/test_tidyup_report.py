@@ -252,3 +252,12 @@ def test_an_object_that_leaves_its_place_says_when_and_during_which_step():
     by = {o.name: o for o in run.report.objects}
     assert by["spoon"].left_place == watch.events["spoon"] and by["bowl"].left_place == []
     assert "in place, then left at 4.0 s during 'place: bowl#4'" in run.report.table()
+    # rocking in and out of the judge's "at rest": the first ones, then a sum
+    for k in range(4):
+        watch.update(judge(5.0 + 2 * k, ["in_place", "held"]), "look", 5.0 + 2 * k)
+        watch.update(judge(6.0 + 2 * k, ["elsewhere", "held"]), "look", 6.0 + 2 * k)
+    assert watch.events["spoon"] == [
+        "left at 4.0 s during 'place: bowl#4': floor",
+        "left at 6.0 s during 'look': elsewhere",
+        "3 more times, the last left at 12.0 s during 'look': elsewhere",
+    ]
