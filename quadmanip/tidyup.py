@@ -82,6 +82,20 @@ class ObjectReport:
     left_place: list[str] = field(default_factory=list)
 
 
+def drawer_openings(
+    start: m.GroundTruthPoses | None, end: m.GroundTruthPoses | None
+) -> dict[str, float]:
+    """How far (m) each drawer handle moved between two ground-truth reports."""
+    if start is None or end is None:
+        return {}
+    first = dict(zip(start.names, np.asarray(start.positions), strict=True))
+    return {
+        str(n): round(float(np.linalg.norm(np.asarray(p) - first[n])), 3)
+        for n, p in zip(end.names, np.asarray(end.positions), strict=True)
+        if n in first
+    }
+
+
 class PlaceWatch:
     """Follows the judge's reports during a trial: when an object judged in place is next
     judged elsewhere, and what the task was doing then."""
@@ -129,6 +143,9 @@ class TidyReport:
     reason: str = ""
     objects: list[ObjectReport] = field(default_factory=list)
     drawers_opened: list[str] = field(default_factory=list)
+    # how far each drawer's handle stands out at the end (m, ground truth: scoring only;
+    # a tool released short of the tools' drawer's mouth may come from a short pull)
+    drawer_openings: dict[str, float] = field(default_factory=dict)
     sim_time_s: float = 0.0
     wall_s: float = 0.0
     rtf: float = 0.0
@@ -208,7 +225,15 @@ class TidyReport:
         lines.append("")
         lines.append(
             f"{self.scenario}: placed {self.placed} of {len(self.objects)} "
-            f"(judge), drawers opened {len(self.drawers_opened)}, status {self.status}"
+            f"(judge), drawers opened {len(self.drawers_opened)}"
+            + (
+                " ("
+                + ", ".join(f"{k} {v:.2f} m" for k, v in sorted(self.drawer_openings.items()))
+                + ")"
+                if self.drawer_openings
+                else ""
+            )
+            + f", status {self.status}"
             + (f" ({self.reason})" if self.reason else "")
         )
         if self.faults or any(self.restarts.values()) or self.falls:
@@ -427,6 +452,7 @@ class TidyRun:
                 raise RuntimeError(f"no behavior/progress within {START_TIMEOUT_S:.0f} s")
             time.sleep(0.2)
         base = self.bus.latest("sim/gt/base")
+        drawers = self.bus.latest("sim/gt/drawers")
         nav_pose = self.bus.latest("navigation/pose")
         true_xy: deque[tuple[float, float, float]] = deque(maxlen=400)  # stamp, x, y
 
@@ -449,6 +475,7 @@ class TidyRun:
         last_line, last_print, last_cpu = "", 0.0, 0.0
         faults = list(self.faults)
         watch = self.place_watch = PlaceWatch()
+        closed = drawers.get()  # the handles where the trial starts
         while True:
             self._check_alive()
             p = progress.get()
@@ -458,6 +485,7 @@ class TidyRun:
                 self._kill(faults.pop(0)[0], now_sim)
             self._count_falls(base.get())
             watch.update(judge.get(), str(p.step) if p is not None else "", now_sim - sim0)
+            closed = closed if closed is not None else drawers.get()
             if self.film is not None and p is not None:
                 self.film.on_step(now_sim - sim0, str(p.step))
             pose_now = nav_pose.get()
@@ -508,6 +536,7 @@ class TidyRun:
         if corr0 is not None:
             rep.odom_drift = {"xy_max_m": round(drift_xy, 4),
                               "yaw_max_deg": round(math.degrees(drift_yaw), 2)}  # fmt: skip
+        rep.drawer_openings = drawer_openings(closed, drawers.get())
         c = clock.get()
         rep.sim_time_s = (float(c.stamp) if c is not None else 0.0) - sim0
         rep.rtf = rep.sim_time_s / max(time.monotonic() - w_run0, 1e-6)

@@ -261,3 +261,21 @@ def test_an_object_that_leaves_its_place_says_when_and_during_which_step():
         "left at 6.0 s during 'look': elsewhere",
         "3 more times, the last left at 12.0 s during 'look': elsewhere",
     ]
+
+
+def test_the_drawers_openings_come_from_the_handles_ground_truth():
+    from quadmanip.tidyup import drawer_openings
+
+    def handles(top_x: float) -> m.GroundTruthPoses:
+        return m.GroundTruthPoses(
+            stamp=0.0,
+            names=["left", "top"],
+            positions=np.array([[9.46, 1.33, 0.14], [top_x, 1.5, 0.345]]),
+            orientations=np.tile([1.0, 0.0, 0.0, 0.0], (2, 1)),
+        )
+
+    got = drawer_openings(handles(9.46), handles(9.26))
+    assert got == {"left": 0.0, "top": pytest.approx(0.2)}
+    assert drawer_openings(None, handles(9.26)) == {}
+    rep = TidyReport("seed-1", 1, "lockstep", drawer_openings=got)
+    assert "top 0.20 m" in rep.table()
