@@ -2717,6 +2717,14 @@ def test_tall_objects_take_the_trays_near_row_and_the_cans_its_far_row_first() -
     assert all(r.placed for r in report.objects)
     assert _record(report, "cracker_box").slot in near
     assert {_record(report, n).slot for n in ("tomato_soup_can", "coffee_can")} == set(far)
+    # the cracker box goes in turned across the robot (paper-1: along the heading its 16 cm
+    # lay over the tray's near wall and a far-row can, and it stuck in the fingers); the
+    # cans and the sugar box as they are held
+    assert CLASSES["sugar_box"].long_side < tray.across_above < CLASSES["cracker_box"].long_side
+    box = tray.release_point(PLACES["tray"], _record(report, "cracker_box").slot)
+    yaws = {tuple(round(v, 3) for v in pos[:2]): yaw for pos, yaw in _calls(house, "place")}
+    assert yaws.pop(tuple(round(v, 3) for v in box[:2])) == pytest.approx(math.pi / 2)
+    assert all(y == 0.0 for y in yaws.values())
 
 
 def test_a_place_refused_as_too_far_to_the_side_faces_the_release_point_again() -> None:
