@@ -47,6 +47,9 @@ class ObjectRecord:
     unseen: int = 0  # probes from its probing area that detected no such object
     estimated: bool = False  # perception planned a grasp of it from close by at least once
     side_probe: bool = False  # perception asked for a look from the side (4.3: not level)
+    # a tall class whose side probe found nothing to grasp while its track lies low on the
+    # table (knocked onto its side): probed from above
+    top_probe: bool = False
     # rad: on a table, the heading it is stood at once its square stance met a leg (one of
     # the task's ``table_slants``); None: square to the table
     table_heading: float | None = None

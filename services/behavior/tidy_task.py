@@ -163,6 +163,8 @@ ROBOT_DOWN = "robot_down"
 NOT_DETECTED = "not in view: no "
 #: Perception's rejection of a probe from above (Section 4.3: the surface seen is not level).
 PROBE_SIDEWAYS = "probe horizontally"
+#: Perception's answer when nothing in the box can be grasped (grasp_pose.py).
+NO_CANDIDATE = "no graspable candidate"
 #: A rejection of manipulation's place: it believes the gripper is empty.
 NOT_HOLDING = "not_holding"
 
@@ -1549,7 +1551,8 @@ class TidyTask:
         c = self.cfg
         if rec.position[2] <= c.table_min_z:
             return _Probe(c.probe_floor_posture, "gripper_camera", c.probe_standoff, False)
-        if self.classes[rec.label].height > c.tall or rec.side_probe:
+        tall = self.classes[rec.label].height > c.tall
+        if (tall and not rec.top_probe) or rec.side_probe:
             return _Probe(
                 c.probe_side_posture,
                 "front_camera",
@@ -1557,6 +1560,12 @@ class TidyTask:
                 True,
             )
         return _Probe(c.probe_table_posture, "gripper_camera", c.probe_standoff, False)
+
+    def _lies_low(self, rec: ObjectRecord) -> bool:
+        """Whether ``rec``'s track lies on its table lower than a standing object of the
+        tall classes would (its middle less than half ``tall`` over the top)."""
+        table = self._table_of(rec)
+        return table is not None and rec.position[2] - table.target[2] < 0.5 * self.cfg.tall
 
     def _table_of(self, rec: ObjectRecord) -> Place | None:
         """The search table a table object lies on (the nearest), None on the floor."""
@@ -1814,7 +1823,13 @@ class TidyTask:
             turn = parse_narrow_side(out.reason) if probe.horizontal else None
             if turn is not None and not rec.end_on and self._table_of(rec) is not None:
                 return self._stand_end_on(rec, turn, out.reason)
-            if PROBE_SIDEWAYS in out.reason and not probe.horizontal and self._table_of(rec):
+            if probe.horizontal and NO_CANDIDATE in out.reason and self._lies_low(rec):
+                # a tall box knocked onto its side is low enough to be grasped from above
+                # (paper-2, 2026-12-06: the sugar box, tipped over by a grasp that closed on
+                # nothing, 4.5 cm tall; three side probes found nothing, given up)
+                with self._lock:
+                    rec.top_probe = True
+            elif PROBE_SIDEWAYS in out.reason and not probe.horizontal and self._table_of(rec):
                 # 4.3: what the camera above sees of it is not level; the paper then probes
                 # from the side. Asking from above again got the same answer four times
                 # (short-20: a "cup" on the living table's edge)

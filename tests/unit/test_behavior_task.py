@@ -239,6 +239,8 @@ class FakeHouse:
         self.place_reach = 0.6  # m: a release point farther off is refused too_far
         # label -> reasons its next places fail with (not rejected: the arm was stopped)
         self.place_failures: dict[str, list[str | Outcome]] = {}
+        # class -> the camera whose probe finds nothing graspable of it
+        self.no_candidate_from: dict[str, str] = {}
 
     # -------------------------------------------------------------- restarts
     def _strike(self, name: str) -> Outage | None:
@@ -524,6 +526,8 @@ class FakeHouse:
             return Outcome(False, f"unknown track {track_id}", rejected=True), None
         if label in self.not_level and camera == "gripper_camera":
             return Outcome(False, f"probe horizontally: {label} in gripper_camera"), None
+        if self.no_candidate_from.get(label) == camera:
+            return Outcome(False, f"no graspable candidate: {label} in {camera}"), None
         if track_id in self.phantoms:
             return Outcome(False, f"not in view: no {label} detected"), None
         if label:
@@ -2740,3 +2744,28 @@ def test_a_place_refused_as_too_far_to_the_side_faces_the_release_point_again() 
     assert len(places) == 2
     between = [what for what, _ in house.calls[places[0] : places[1]]]
     assert "approach" in between  # it stood square to the release point again
+
+
+def test_a_tall_box_lying_on_a_table_is_probed_from_above_after_a_side_probe_finds_nothing():
+    # paper-2 (2026-12-06): the sugar box, knocked onto its side on the kitchen table by a
+    # grasp that closed on nothing (4.5 cm tall then); three side probes found "no
+    # graspable candidate" and it was given up
+    def run(z: float) -> tuple[TaskReport, FakeHouse]:
+        things = _things()
+        things[2] = Thing("sugar_box", 3, (2.6, 3.3, z), on_table=True)
+        house = FakeHouse(things)
+        house.no_candidate_from = {"sugar_box": "front_camera"}
+        return _task(house).run(), house
+
+    report, house = run(0.42)  # its middle 2 cm over the top: lying
+    rec = _record(report, "sugar_box")
+    assert rec.placed and rec.top_probe
+    cams = [cam for label, cam in house.probed_with if label == "sugar_box"]
+    assert cams[0] == "front_camera" and cams[-1] == "gripper_camera"
+    assert [f.reason for f in rec.failures] == [
+        "estimate: no graspable candidate: sugar_box in front_camera"
+    ]
+    report, house = run(0.49)  # standing: the side probe stays
+    rec = _record(report, "sugar_box")
+    assert not rec.placed and not rec.top_probe
+    assert {cam for label, cam in house.probed_with if label == "sugar_box"} == {"front_camera"}
