@@ -92,7 +92,8 @@ class GraspConfig:
     open_margin: float = 0.03
     # Place: release height above the region's top surface and retract height.
     place_release_z: float = 0.06
-    # ... this low where place_release_z is out of reach (a tall object over a far slot)
+    # ... this low where place_release_z is out of reach, before the tool leans (a tall
+    # box over the tray from the task's stance)
     place_min_release_z: float = 0.03
     retract_height: float = 0.10
     # Place: how far (m) the held object's bottom may swing sideways when the tool leans
