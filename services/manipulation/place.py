@@ -5,11 +5,11 @@ the object must clear) and the object's ``hang`` below the tool centre (known fr
 grasp). Sequence: moveCOM sideways so the point lies in the arm plane; joint move to a
 transit pose ``transit_clearance`` above the release pose; straight line down to the
 release pose (object bottom ``place_release_z`` above the rim, or ``place_min_release_z``
-where that is out of reach); open; straight line up
-``retract_height``; verify empty by closing the fingers - they must meet (a stuck object
-stalls them); send the body back to its pose (not waited for; the fingers stay closed). An object the check closes on may only stand between
-the open fingers (it landed upright, or leaning on a wall, with its top still between
-them): the fingers open again, the tool rises straight up ``retract_height`` more where it
+where that is out of reach); open; straight line up ``retract_height``; verify empty by
+closing the fingers - they must meet (a stuck object stalls them); send the body back to
+its pose (not waited for; the fingers stay closed). An object the check closes on may
+only stand between the open fingers (it landed upright, or leaning on a wall, with its
+top still between them): the fingers open again, the tool rises straight up ``retract_height`` more where it
 can, and a second check decides (paper-5: a soup can, re-gripped by the check in the tray,
 was carried on as "let go" and released later in the pencil case).
 """
