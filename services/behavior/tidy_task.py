@@ -179,6 +179,14 @@ POSE_LOST_BY = frozenset({"locomotion", "navigation"})
 RECOVERY_ROUNDS = 4
 
 
+def _along_edge(table: Place, p: Sequence[float]) -> tuple[tuple[float, float], float]:
+    """The direction of ``table``'s edge seen from its stand, and how far plan point ``p``
+    lies along it from the table's middle."""
+    h = table.stand[2]
+    along = (-math.sin(h), math.cos(h))
+    return along, (p[0] - table.target[0]) * along[0] + (p[1] - table.target[1]) * along[1]
+
+
 def _synthetic(zone: str) -> bool:
     """A zone the task made up (a look around a spot), not one of the places file."""
     return zone.startswith((DROP_ZONE, RELOOK_ZONE))
@@ -1776,10 +1784,8 @@ class TidyTask:
         p = (float(point[0]), float(point[1]), float(point[2]) if len(point) > 2 else 0.0)
         if table is None or rec.table_heading is not None:
             return p
-        h = table.stand[2]
-        along = (-math.sin(h), math.cos(h))  # the edge's direction
+        along, d = _along_edge(table, p)
         half = 0.5 * (abs(along[0]) * table.size[0] + abs(along[1]) * table.size[1])
-        d = (p[0] - table.target[0]) * along[0] + (p[1] - table.target[1]) * along[1]
         shift = min(max(self.cfg.table_end_clear - (half - abs(d)), 0.0), self.cfg.table_end_shift)
         if shift <= 0.0:
             return p
@@ -1789,13 +1795,9 @@ class TidyTask:
     def _table_slants(self, rec: ObjectRecord, table: Place) -> list[float]:
         """Headings turned from the table's square one by ``table_slants``, the way that
         moves the stance toward the table's middle along its edge."""
-        h = table.stand[2]
-        along = (-math.sin(h), math.cos(h))  # the edge's direction
-        d = (rec.position[0] - table.target[0]) * along[0] + (
-            rec.position[1] - table.target[1]
-        ) * along[1]
+        _, d = _along_edge(table, rec.position)
         sign = 1.0 if d >= 0.0 else -1.0
-        return [h + sign * a for a in self.cfg.table_slants]
+        return [table.stand[2] + sign * a for a in self.cfg.table_slants]
 
     def _probe(self) -> Step:
         rec, probe = self.target, self.probe
