@@ -273,8 +273,9 @@ class DepositSpec:
         return self.min_standoff - beyond
 
     def release_point(self, place: Place, n: int) -> Point3:
-        """Where (map) the ``n``-th object put into ``place`` (from 0) is released, facing
-        it from its stand: its slot, nearer the robot by ``release_toward_robot``."""
+        """Where (map) an object is released at slot ``n`` of ``place`` (from 0; past the
+        last, from the first again), facing it from its stand: the slot, nearer the robot
+        by ``release_toward_robot``."""
         heading = place.stand[2]
         back = (-math.cos(heading), -math.sin(heading))  # from the target toward the robot
         left = (back[1], -back[0])  # the robot's left, facing the place
