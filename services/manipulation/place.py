@@ -9,8 +9,8 @@ where that is out of reach); open; straight line up ``retract_height``; verify e
 closing the fingers - they must meet (a stuck object stalls them); send the body back to
 its pose (not waited for; the fingers stay closed). An object the check closes on may
 only stand between the open fingers (it landed upright, or leaning on a wall, with its
-top still between them): the fingers open again, the tool rises straight up ``retract_height`` more where it
-can, and a second check decides (paper-5: a soup can, re-gripped by the check in the tray,
+top still between them): the fingers open again, the tool rises straight up
+``retract_height`` more where it can, and a second check decides (paper-5: a soup can, re-gripped by the check in the tray,
 was carried on as "let go" and released later in the pencil case).
 """
 

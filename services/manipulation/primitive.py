@@ -384,21 +384,16 @@ class Primitive:
         Without ``settle`` the request is sent and not waited for (a primitive's last
         step, the trunk back to its stance with nothing in the fingers)."""
         new = BodyPoseRequest(x_offset=x, y_offset=y, z_offset=z)
-        if new != self.body and not settle:
-            self.body = new
-            yield [new]
-            return
+        t_end = -math.inf
         if new != self.body:
             assert self._last_obs is not None
             t_end = self._last_obs.t + self.cfg.grasp.body_settle_time
             self.body = new
             yield [new]
-        else:
-            t_end = -math.inf
         if during is not None:
             yield from during
         assert self._last_obs is not None
-        if self._last_obs.t < t_end:
+        if settle and self._last_obs.t < t_end:
             yield from self.wait(t_end - self._last_obs.t)
 
     def open_gripper(self, gap: float | None = None, settle: float = 0.1) -> Script:
