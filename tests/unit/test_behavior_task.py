@@ -635,7 +635,8 @@ class FakeHouse:
             self.stale_grip_until = self.t + self.grip_lag
             return Outcome(False, "object_stuck: the fingers still hold something after release")
         tidy = [p for p in PLACES.values() if p.kind in ("deposit", "drawer")]
-        near = min(tidy, key=lambda p: math.dist(p.target[:2], position[:2]))
+        # nearest in 3-D: the tools' drawer's side slots lie over the lower drawers' handles
+        near = min(tidy, key=lambda p: math.dist(p.target, position))
         inside = math.dist(near.target[:2], position[:2]) < 0.2
         self.held.released_in = near.name if inside else "floor"
         self.held.position = tuple(position)
@@ -1744,6 +1745,31 @@ def test_four_food_objects_go_into_the_tray_each_on_a_spot_of_its_own() -> None:
     # every release point lies inside the tray (0.40 x 0.30 m outside) a can's radius in
     inner = np.abs(points - np.array(tray.target[:2])) + 0.051
     assert np.all(inner <= np.array([0.192, 0.142]))
+
+
+def test_the_tools_go_into_the_drawer_each_on_a_spot_of_its_own() -> None:
+    # released on one spot, the second tool landed on the first and one ended outside the
+    # drawer (seed-124: the clamp hanging on the front panel, then the padlock on the floor)
+    things = [
+        Thing("padlock", 1, (2.5, 1.4, 0.012)),
+        Thing("clamp", 2, (3.2, 1.9, 0.016)),
+        Thing("screwdriver", 3, (2.0, 2.2, 0.016)),
+    ]
+    house = FakeHouse(things)
+    report = _task(house).run()
+    assert report.outcome == "done", report.reason
+    drawer = PLACES[CFG.deposits["drawer"].place]
+    assert [t.released_in for t in house.things.values()] == [drawer.name] * 3
+    left = (-math.sin(drawer.stand[2]), math.cos(drawer.stand[2]))
+    sides = sorted(
+        (pos[0] - drawer.target[0]) * left[0] + (pos[1] - drawer.target[1]) * left[1]
+        for pos, _ in _calls(house, "place")
+    )
+    # apart by more than the clamp's 12.5 cm width, and the outer ones with the clamp's
+    # 16.5 cm length inside the drawer's 64 cm (its inner half width: 0.30 m)
+    assert len(sides) == 3
+    assert min(b - a for a, b in zip(sides, sides[1:], strict=False)) > 0.125
+    assert max(abs(s) for s in sides) + 0.165 / 2 < 0.30
 
 
 def _two_cans() -> list[Thing]:
