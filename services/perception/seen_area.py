@@ -5,10 +5,11 @@ front camera sees most of a room from its first views: in the tidy-up trials of
 2026-12-05/06 the robot walked the rest of the viewpoints after the last object was
 placed for 18-144 s (median 46 s) of each trial, finding nothing. Perception knows what
 its cameras have seen. Each frame it remembers (the detector ran on it in a search or
-probing posture) counts a view of the cells of its depth returns (every ``stride``-th pixel)
-within range of the camera that lie on the floor (below ``floor_max_z``) or on a table
-top (within ``table_z``); a cell shown by ``min_views`` frames counts seen, and the task
-skips a viewpoint whose view the grid shows seen. The range is where the detector finds the small objects reliably, not the depth
+probing posture) counts a view of the cells of its depth returns (every ``stride``-th
+pixel) within range of the camera that lie on the floor (below ``floor_max_z``) or on a
+table top (within ``table_z``, seen from ``table_look_down`` above); a cell shown by
+``min_views`` frames counts seen, and the task skips a viewpoint whose view the grid shows
+seen. The range is where the detector finds the small objects reliably, not the depth
 camera's reach: a cell counts only where an object in it would have been found.
 
 The grid lies in the map frame (the node marks frames only while navigation publishes
@@ -42,6 +43,11 @@ class SeenConfig:
     self_radius: float = 0.35  # m about the base (horizontal): the robot's own trunk
     floor_max_z: float = 0.05  # m: returns lower than this lie on the floor
     table_z: tuple[float, float] = (0.3, 0.6)  # m: returns within lie on a table top
+    # m: a table-top return counts only from a camera at least this much above it. The
+    # front camera (0.33 m up) sees a 0.40 m table's underside (0.385 m, within table_z)
+    # and marked up to a fifth of the kitchen table from one stance; the tops were
+    # "seen" with no view of them, and paper-3 (2026-12-06) never found a padlock there.
+    table_look_down: float = 0.15
     # frames that must show a cell before it counts seen: the memory confirms a track
     # after 3 detections, so a cell glimpsed once while walking past is not enough
     min_views: int = 3
@@ -56,6 +62,8 @@ class SeenConfig:
             raise ValueError(f"SeenConfig.min_views must be in [1, 255]: {self.min_views}")
         if not self.table_z[0] < self.table_z[1]:
             raise ValueError(f"SeenConfig.table_z must be (low, high): {self.table_z}")
+        if not self.table_look_down >= 0.0:
+            raise ValueError(f"SeenConfig.table_look_down must be >= 0 m: {self.table_look_down}")
 
 
 class SeenArea:
@@ -82,15 +90,17 @@ class SeenArea:
         """The stamp of each cell's latest view at ``level`` (0: never)."""
         return self.last[level]
 
-    def mark(self, points: np.ndarray, stamp: float = 0.0) -> int:
+    def mark(self, points: np.ndarray, stamp: float = 0.0, camera_z: float = math.inf) -> int:
         """Count one frame's view (at ``stamp``) of the cells of ``points`` (N, 3; the
-        grid's frame, z up from the floor) that lie on the floor or a table top; returns
-        how many cells this frame made seen (``min_views`` reached)."""
+        grid's frame, z up from the floor) that lie on the floor or a table top (a camera
+        at height ``camera_z`` sees a table's top only from ``table_look_down`` above it);
+        returns how many cells this frame made seen (``min_views`` reached)."""
         cfg = self.config
         p = np.asarray(points, dtype=float).reshape(-1, 3)
         p = p[np.all(np.isfinite(p), axis=1)]
         z = p[:, 2]
-        levels = (z < cfg.floor_max_z, (z >= cfg.table_z[0]) & (z <= cfg.table_z[1]))
+        on_top = (z >= cfg.table_z[0]) & (z <= cfg.table_z[1])
+        levels = (z < cfg.floor_max_z, on_top & (z <= camera_z - cfg.table_look_down))
         keep = levels[0] | levels[1]
         if not keep.any():
             return 0
@@ -134,7 +144,7 @@ class SeenArea:
         pts = p[~own]
         m = np.asarray(to_grid, dtype=float)
         pts[:, :2] = pts[:, :2] @ m[:2, :2].T + m[:2, 2]
-        return self.mark(pts, stamp)
+        return self.mark(pts, stamp, float(np.asarray(position, float)[2]))
 
     def _grow(self, r_lo: int, r_hi: int, c_lo: int, c_hi: int) -> None:
         """Make the grid hold rows r_lo..r_hi and columns c_lo..c_hi (cell indices),

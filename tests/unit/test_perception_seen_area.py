@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
+from quadmanip.common import robot_description as rd
 from quadmanip.common.messages import SEEN_FLOOR, SEEN_TABLE
 from quadmanip.services.perception.node import seen_grid
 from quadmanip.services.perception.seen_area import SeenArea, SeenConfig
@@ -114,3 +117,51 @@ def test_a_reader_asks_what_was_seen_since_a_time():
     assert grid.seen(q, SEEN_FLOOR).tolist() == [True, True]
     assert grid.seen(q, SEEN_FLOOR, since=10.0).tolist() == [False, True]
     assert not grid.seen(q, SEEN_TABLE, since=0.0).any()
+
+
+def test_a_table_top_counts_seen_only_from_a_camera_above_it():
+    # the front camera (0.33 m up) sees a 0.40 m table's underside at 0.385 m
+    area = SeenArea(SeenConfig(resolution=0.1, min_views=1))
+    under = np.array([[3.05, 1.05, 0.385], [3.15, 1.05, 0.385]])
+    assert area.mark(under, camera_z=0.33) == 0
+    assert area.mark(under, camera_z=0.50) == 0  # level with it: a grazing look at best
+    assert area.mark(under, camera_z=0.83) == 2  # the gripper camera over the table
+    assert area.mark(np.array([[5.05, 1.05, 0.0]]), camera_z=0.33) == 1  # the floor: always
+
+
+def _table_cells_marked(posture: str, camera: str, back: float) -> int:
+    """Kitchen-table cells (of 54) one rendered frame marks, the robot in ``posture``
+    facing the table's south edge from ``back`` m, reach as the node's config."""
+    import mujoco
+    from quadmanip.common.config import load_config
+    from quadmanip.services.perception.config import PerceptionConfig
+    from quadmanip.services.perception.seen_area import TABLE
+    from quadmanip.sim.scenarios import Placement, Scenario
+    from quadmanip.sim.world.builder import build_world
+    from quadmanip.testbench.probe_views import _postures, _stand, render_object
+
+    cfg = load_config(PerceptionConfig, "perception").seen
+    # the kitchen table: centre (7.2, 1.9), 0.9 x 0.6 m; a ball far off for the renderer
+    ball = Placement("baseball", "floor", (4.0, 1.0, 0.04), (1.0, 0.0, 0.0, 0.0))
+    world = build_world(Scenario("seen", 0, (ball,), (7.2, 1.6 - back, 90.0)))
+    data = world.initial_data()
+    _stand(world, data, *_postures()[posture])
+    frame, _ = render_object(world, data, camera, "baseball")
+    site = world.model.site(rd.CAMERA_OPTICAL_SITES[camera]).id
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, data.site_xmat[site])
+    area = SeenArea(replace(cfg, min_views=1))
+    reach = cfg.front_range if camera == rd.FRONT_CAMERA else cfg.gripper_range
+    base = np.array([7.2, 1.6 - back])
+    area.mark_frame(frame.depth, frame.K, data.site_xpos[site], quat, reach, np.eye(3), base)
+    rows, cols = np.nonzero(area.seen(TABLE))
+    x = (cols + area.col0 + 0.5) * cfg.resolution
+    y = (rows + area.row0 + 0.5) * cfg.resolution
+    return int(np.count_nonzero((abs(x - 7.2) < 0.45) & (abs(y - 1.9) < 0.3)))
+
+
+def test_the_front_camera_below_a_table_top_marks_none_of_it_the_gripper_camera_over_it_does():
+    # before: the front camera marked 11-12 of the 54 cells from 0.9-1.3 m, from below
+    for back in (0.6, 0.9, 1.3):
+        assert _table_cells_marked("floor_search", rd.FRONT_CAMERA, back) == 0
+    assert _table_cells_marked("table_search", rd.GRIPPER_CAMERA, 0.6) > 40
