@@ -63,6 +63,9 @@ class ObjectRecord:
     # s (robot time): not taken up again before this (its walk goals were all blocked)
     wait_until: float = -math.inf
     slot: int = -1  # the deposit slot it was (last) to be released at; -1: none yet
+    # (x0, y0, x1, y1) map: the walk it fell from the fingers on, from where it was picked
+    # up to where the robot noticed (it may lie anywhere along it); empty: not dropped
+    dropped_along: tuple[float, ...] = ()
     time_spent: float = 0.0  # s of robot time spent on it (approach to let go)
     failures: list[Failure] = field(default_factory=list)
     first_position: Point3 = (math.nan, math.nan, math.nan)  # where it was first seen

@@ -944,6 +944,22 @@ class TidyTask:
                 and _dist(rec.position, obj.position) < self.cfg.same_object_radius
             ):
                 return rec
+        for rec in self.report.objects:
+            # a dropped object lies somewhere along the walk it fell on, often outside every
+            # search zone (paper-2, 2026-12-06: the spoon fell in the doorway 1.6 m before
+            # the robot noticed at the walk's end; perception confirmed a spoon track there
+            # at once, outside every zone and far from the look where the robot stood, and
+            # the task ended without it)
+            if (
+                rec.dropped_along
+                and rec.label == obj.label
+                and not rec.finished
+                and rec is not self.target
+                and obj.position[2] <= self.cfg.table_min_z
+                and _segment_dist(obj.position, rec.dropped_along[:2], rec.dropped_along[2:])
+                < self.cfg.drop_search_margin
+            ):
+                return rec
         return None
 
     def _graspable(self) -> list[tuple[SeenObject, ObjectRecord | None]]:
@@ -2280,7 +2296,10 @@ class TidyTask:
         if record:
             self._fail(step, why)
         here = self._pose()
-        self._search_again_near(self.picked_from or here, here)
+        start = self.picked_from or here
+        with self._lock:
+            rec.dropped_along = (start[0], start[1], here[0], here[1])
+        self._search_again_near(start, here)
         self.target = None
         self._look_where_it_fell(here)
 
