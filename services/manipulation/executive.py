@@ -178,6 +178,9 @@ class Outcome:
 
     status: Status
     reason: str = ""
+    # what the goal was planned as, for the log (a place: the release pose and the held
+    # object's middle; empty for the other goals)
+    plan: str = ""
 
 
 # --------------------------------------------------------------------------- runs
@@ -342,10 +345,11 @@ class Executive:
                 last = text
                 feedback(float(prim.progress.value), text)
         if prim.status is Status.SUCCEEDED:
-            return Outcome(Status.SUCCEEDED)
+            return Outcome(Status.SUCCEEDED, plan=prim.note)
         if prim.status is Status.CANCELED:
-            return Outcome(Status.CANCELED, CANCELED_REASON if run.cancel else prim.reason)
-        return Outcome(Status.FAILED, prim.reason or "failed")
+            why = CANCELED_REASON if run.cancel else prim.reason
+            return Outcome(Status.CANCELED, why, plan=prim.note)
+        return Outcome(Status.FAILED, prim.reason or "failed", plan=prim.note)
 
     # ------------------------------------------------------------------ control
     def step(self, obs: Observation) -> list[Output]:
@@ -418,7 +422,13 @@ class Executive:
                 yaw=request.yaw,
                 held=self.held,
             )
-            return PlacePrimitive(self.geom, cfg, plan, **kw)
+            prim = PlacePrimitive(self.geom, cfg, plan, **kw)
+            held = "unknown" if self.held is None else np.round(self.held, 3).tolist()
+            prim.note = (
+                f"asked {np.round(request.position, 3).tolist()} yaw {request.yaw}, "
+                f"held middle {held}, hang {self.hang:.3f}; {plan.describe()}"
+            )
+            return prim
         if isinstance(request, DrawerRequest):
             plan = plan_drawer(
                 self.geom,

@@ -160,6 +160,8 @@ class ManipulationNode(Service):
 
         outcome = self.executive.execute(handle.goal, cancel_requested=stop_now,
                                          feedback=handle.feedback)  # fmt: skip
+        if outcome.plan:
+            self.log.info("planned", goal=type(handle.goal).__name__, plan=outcome.plan)
         # what the goal left in the fingers goes out before its result (the loop thread
         # sends it too, but may do so just after this thread answers)
         held = self.executive.payload

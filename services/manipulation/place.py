@@ -52,6 +52,14 @@ class PlacePlan:
         self.release = release
         self.retract = retract
 
+    def describe(self) -> str:
+        """The release pose (arm base frame) and the trunk's offsets, for the log."""
+        r, b = self.release, self.body
+        return (
+            f"release x {r.x:.3f} z {r.z:.3f} pitch {r.pitch:.2f} roll {r.roll:.2f}, "
+            f"body x {b.x_offset:+.3f} y {b.y_offset:+.3f} z {b.z_offset:+.3f}"
+        )
+
 
 def plan_place(
     geom: ArmGeometry,

@@ -134,6 +134,7 @@ class Primitive:
         # shared across primitives so that place() knows what grasp() holds
         self.monitor = monitor if monitor is not None else GraspMonitor(cfg.gripper)
         self.status = Status.RUNNING
+        self.note = ""  # what it was planned as, for the log (see Outcome.plan)
         self.reason = ""
         self.progress = _Progress()
         # body offset currently requested from locomotion (shared like the monitor)

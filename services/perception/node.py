@@ -622,6 +622,11 @@ class PerceptionNode(Service):
             if cfg.node.save_rejected:
                 self._save_rejection(img, det, where, probing, reason)
             raise ActionFailed(reason)
+        self.log.info(
+            "grasp estimated", cls=det.label, camera=img.camera, approach=est.approach,
+            position=np.round(est.position, 3).tolist(), center=np.round(est.center, 3).tolist(),
+            yaw=round(float(est.yaw), 3), width=round(float(est.width), 3),
+        )  # fmt: skip
         return m.GraspGoal(
             stamp=img.stamp,
             position=est.position,

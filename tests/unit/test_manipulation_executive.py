@@ -402,7 +402,12 @@ def test_the_grip_verdict_is_sent_before_the_goal_ends(stuck):
     assert ex.accept(req, plant.obs(), token=req).accepted and ex.start(req) is not None
     plant.run(ex)
     place = PlaceRequest((0.36, 0.0, ex.floor_z + 0.05))
-    assert ex.accept(place, plant.obs(), token=place).accepted and ex.start(place)
+    assert ex.accept(place, plant.obs(), token=place).accepted
+    prim = ex.start(place)
+    assert prim is not None
+    # the log says where it was asked and planned to let go (a tool left on the drawer's
+    # front in paper-5, 2026-12-06, and nothing said where it was released)
+    assert prim.note.startswith("asked [0.36, 0.0, ") and "release x 0." in prim.note
     if not stuck:
         plant.width = 0.0  # the object stays where it was put: the fingers close on nothing
     plant.run(ex)  # stops on the step that ended the place
