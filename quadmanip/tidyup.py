@@ -161,6 +161,10 @@ class TidyReport:
     # release point is as good as this)
     localisation_error_m: dict[str, float] = field(default_factory=dict)
     place_localisation_error_m: dict[str, float] = field(default_factory=dict)
+    # per place step ("place: screwdriver#12"), the error of its last sample: about where
+    # the robot stood as it let go (a tool released 11 cm short of the drawer's mouth in
+    # paper-5, 2026-12-06, and nothing said whether the pose was off then)
+    release_localisation_error_m: dict[str, float] = field(default_factory=dict)
     # how far navigation's map->odom correction moved from its first localised value: the
     # odometry's drift over the trial, which perception's odom-frame tracks must follow
     # (xy_max_m at the correction's origin, yaw_max_deg)
@@ -499,6 +503,8 @@ class TidyRun:
                 loc_errors.append(err)
                 if p is not None and str(p.step).startswith("place"):
                     place_errors.append(err)
+                    step = " ".join(str(p.step).split()[:2]).rstrip(":")  # "place: name#id"
+                    rep.release_localisation_error_m[step] = round(err, 4)
             if time.monotonic() - last_cpu > 1.0:  # follow restarted children's CPU
                 self._cpu()
                 last_cpu = time.monotonic()

@@ -63,6 +63,8 @@ def test_short_tidy_up_places_both_objects():
             o.found and o.grasped and o.placed_by_robot for o in rep.objects
         ),
         "timing was measured": rep.rtf > 0.0 and rep.robot_services_cpu_cores > 0.0,
+        "the pose at each release was scored": len(rep.release_localisation_error_m) >= 2
+        and all(0.0 <= e < 0.2 for e in rep.release_localisation_error_m.values()),
     }
     failed = [k for k, ok in checks.items() if not ok]
     if failed:
