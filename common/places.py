@@ -20,6 +20,13 @@ table, whose top lies above the scan's plane and whose legs alone are in the map
 Navigation keeps its paths out of such areas (Nav2's keepout filter); localisation still
 matches the scans against the map alone.
 
+``moves = true`` marks a place's area (``size`` around the target) as scenery that moves:
+the drawers, whose fronts come up to 30 cm out of the cabinet as they open. The map shows
+them shut; localisation ignores the scan's returns there. With the tools' drawer open
+24 cm, the LiDAR's returns off its front pulled the pose 9.5 cm toward the cabinet at the
+stances beside its middle, and a tool released there landed on the drawer's front panel
+(paper-1 and paper-5, 2026-12-06).
+
 Example::
 
     [places.tray]
@@ -67,6 +74,7 @@ class Place:
     size: tuple[float, float] = (0.0, 0.0)
     note: str = ""
     keepout: bool = False
+    moves: bool = False  # the area's scenery moves (drawers): localisation ignores it
 
     @property
     def area(self) -> tuple[float, float, float, float]:
@@ -124,7 +132,7 @@ def load_places(path: str | Path) -> dict[str, Place]:
         where = f"{path}: places.{name}"
         if not isinstance(p, dict):
             raise PlacesError(f"{where}: must be a table")
-        unknown = set(p) - {"kind", "stand", "target", "size", "note", "keepout"}
+        unknown = set(p) - {"kind", "stand", "target", "size", "note", "keepout", "moves"}
         if unknown:
             raise PlacesError(f"{where}: unknown keys {sorted(unknown)}")
         kind = p.get("kind")
@@ -140,6 +148,11 @@ def load_places(path: str | Path) -> dict[str, Place]:
             raise PlacesError(f"{where}.keepout: want true or false, got {keepout!r}")
         if keepout and min(size) <= 0.0:
             raise PlacesError(f"{where}: keepout needs the area's 'size' [x, y], both > 0")
+        moves = p.get("moves", False)
+        if not isinstance(moves, bool):
+            raise PlacesError(f"{where}.moves: want true or false, got {moves!r}")
+        if moves and min(size) <= 0.0:
+            raise PlacesError(f"{where}: moves needs the area's 'size' [x, y], both > 0")
         places[name] = Place(
             name=name,
             kind=kind,
@@ -148,6 +161,7 @@ def load_places(path: str | Path) -> dict[str, Place]:
             size=(size[0], size[1]),
             note=str(p.get("note", "")),
             keepout=keepout,
+            moves=moves,
         )
     return places
 
@@ -170,6 +184,8 @@ def save_places(path: str | Path, places: list[Place] | dict[str, Place], header
             lines.append(f"size = [{p.size[0]:.3f}, {p.size[1]:.3f}]")
         if p.keepout:
             lines.append("keepout = true")
+        if p.moves:
+            lines.append("moves = true")
         if p.note:
             lines.append(f'note = "{p.note}"')
     path = Path(path)

@@ -46,10 +46,12 @@ def draft_places(world_to_map: Pose2 = (0.0, 0.0, 0.0)) -> list[Place]:
     places: list[Place] = []
 
     def add(name: str, kind: str, stand: Pose2, target: tuple[float, float, float],
-            size: tuple[float, float] = (0.0, 0.0), keepout: bool = False) -> None:  # fmt: skip
+            size: tuple[float, float] = (0.0, 0.0), keepout: bool = False,
+            moves: bool = False) -> None:  # fmt: skip
         s = compose(world_to_map, stand)
         t = compose(world_to_map, (target[0], target[1], 0.0))
-        places.append(Place(name, kind, s, (t[0], t[1], target[2]), size, keepout=keepout))
+        places.append(Place(name, kind, s, (t[0], t[1], target[2]), size, keepout=keepout,
+                            moves=moves))  # fmt: skip
 
     def roomiest(cx: float, cy: float, hx: float, hy: float, standoff: float) -> Pose2:
         """Of the four sides of a rectangle, the stand pose facing its centre with the
@@ -89,6 +91,12 @@ def draft_places(world_to_map: Pose2 = (0.0, 0.0, 0.0)) -> list[Place]:
         add(f"drawer_{name}", "drawer", _facing((h[0], h[1]), heading, HANDLE_STANDOFF),
             (float(h[0]), float(h[1]), float(h[2])))  # fmt: skip
     hc = np.mean(list(handles.values()), axis=0)
+    # the drawers' fronts move: from the shut handles out by the travel and in as far
+    # (the map's cabinet front among it), across the cabinet's width (axis-aligned)
+    cab = world.house.cabinet
+    along, across = 2.0 * cab.travel, cab.width + 0.02
+    c, sn = abs(math.cos(heading)), abs(math.sin(heading))
     add("cabinet", "cabinet", _facing((hc[0], hc[1]), heading, CABINET_STANDOFF),
-        (float(hc[0]), float(hc[1]), 0.0))  # fmt: skip
+        (float(hc[0]), float(hc[1]), 0.0), (along * c + across * sn, along * sn + across * c),
+        moves=True)  # fmt: skip
     return places

@@ -31,6 +31,7 @@ filter overconfident. Between filter steps the estimate follows the odometry.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -256,6 +257,35 @@ class ParticleFilter:
         self._w_fast = 0.0
         self._estimate: _Estimate | None = None
         self._refined: _Refined | None = None
+        self._ignored = np.zeros((0, 4))  # (x0, y0, x1, y1) map areas whose returns are dropped
+
+    def ignore_areas(self, areas: Sequence[tuple[float, float, float, float]]) -> None:
+        """Drop the scan's returns that fall (at the estimate) within ``areas`` (x_min,
+        y_min, x_max, y_max; map): scenery that moves, as a drawer's front, which the map
+        shows where it was when mapped. Before the filter has an estimate every return
+        counts."""
+        a = np.asarray(list(areas), dtype=float).reshape(-1, 4)
+        if np.any(a[:, 2] <= a[:, 0]) or np.any(a[:, 3] <= a[:, 1]):
+            raise ValueError(f"ignored areas must have x_min < x_max, y_min < y_max: {a}")
+        self._ignored = a
+
+    def _in_ignored(self, pts: np.ndarray) -> np.ndarray:
+        """Mask of the base-frame ``pts`` that lie, seen from the estimate, in an ignored
+        area."""
+        if not len(self._ignored) or self._estimate is None:
+            return np.zeros(len(pts), dtype=bool)
+        x, y, yaw = self._particle_pose()
+        c, s = math.cos(yaw), math.sin(yaw)
+        wx = x + c * pts[:, 0] - s * pts[:, 1]
+        wy = y + s * pts[:, 0] + c * pts[:, 1]
+        a = self._ignored
+        inside = (
+            (wx[:, None] >= a[None, :, 0])
+            & (wx[:, None] <= a[None, :, 2])
+            & (wy[:, None] >= a[None, :, 1])
+            & (wy[:, None] <= a[None, :, 3])
+        )
+        return inside.any(axis=1)
 
     # ------------------------------------------------------------------ initialisation
 
@@ -450,6 +480,9 @@ class ParticleFilter:
         pts = pts[np.all(np.isfinite(pts), axis=1)]
         if len(pts) == 0 or len(self.particles) == 0:
             return False
+        moving = self._in_ignored(pts)
+        if np.count_nonzero(~moving) >= 10:  # (nearly all of it: keep what there is)
+            pts = pts[~moving]
         weighed = False
         if self._pending or self._force_update:
             self._weigh(pts, scan.range_max)

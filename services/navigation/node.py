@@ -186,6 +186,8 @@ class NavigationNode(Service):
                 x, y, yaw = nc.initial_pose
                 sx, sy, syaw = nc.initial_std
                 self.amcl.initialize((x, y, math.radians(yaw)), (sx, sy, math.radians(syaw)))
+            # localisation ignores what moves (the drawers' fronts: the map shows them shut)
+            self.amcl.ignore_areas([p.area for p in self.places.values() if p.moves])
             # the costmaps keep paths out of the keepout areas; localisation uses the map
             keepouts = [p.area for p in self.places.values() if p.keepout]
             static = with_keepouts(self.map_grid, self.map_geo, keepouts)

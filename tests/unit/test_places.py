@@ -47,3 +47,22 @@ def test_keepout_areas_load_save_and_refuse_an_area_without_a_size(tmp_path):
                    'size = [1, 1]\nkeepout = "yes"\n')  # fmt: skip
     with pytest.raises(PlacesError, match="keepout: want true or false"):
         load_places(bad)
+
+
+def test_moving_scenery_areas_load_save_and_refuse_an_area_without_a_size(tmp_path):
+    from quadmanip.common.places import PlacesError, load_places, save_places
+
+    cab = Place("cabinet", "cabinet", (8.56, 1.5, 0.0), (9.46, 1.5, 0.0), (0.6, 0.72), moves=True)
+    path = save_places(tmp_path / "a.places.toml", [cab])
+    assert "moves = true" in path.read_text()
+    back = load_places(path)["cabinet"]
+    assert back.moves and not back.keepout and back.area == pytest.approx((9.16, 1.14, 9.76, 1.86))
+    bad = tmp_path / "b.places.toml"
+    bad.write_text('[places.c]\nkind = "cabinet"\nstand = [0, 0, 0]\ntarget = [1, 1, 0]\n'
+                   "moves = true\n")  # fmt: skip
+    with pytest.raises(PlacesError, match="moves needs the area's 'size'"):
+        load_places(bad)
+    bad.write_text('[places.c]\nkind = "cabinet"\nstand = [0, 0, 0]\ntarget = [1, 1, 0]\n'
+                   'size = [1, 1]\nmoves = 1\n')  # fmt: skip
+    with pytest.raises(PlacesError, match="moves: want true or false"):
+        load_places(bad)
