@@ -374,7 +374,6 @@ class Navigator:
             g.t_blocked = now
         elif not cmd.blocked:
             g.t_blocked = None
-        # blocked right at the start, a walk steps back at once (below), with no wait
         early = now - g.t_start < cfg.start_window and g.recoveries == 0 and not g.stepped_back
         if cmd.blocked and not early and now - g.t_blocked < cfg.blocked_patience:
             # stand a moment: the follower sets off again slowly where it can
@@ -383,7 +382,8 @@ class Navigator:
         if cmd.blocked:
             g.t_blocked = None
             g.last_reason = "an obstacle in the way"
-            if early:
+            early = now - g.t_start < cfg.start_window and g.recoveries == 0
+            if early and not g.stepped_back:
                 g.stepped_back = True
                 step = self._step_back(g, now, pose, costmap)
                 if step is not None:
