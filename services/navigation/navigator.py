@@ -61,12 +61,6 @@ class NavigatorConfig:
     # seed-114, 2026-12-05): blocked within this long of the start, before any recovery,
     # it only steps back (once), and then follows its path.
     start_window: float = 2.0
-    # s the follower's collision stop may last before a recovery starts: stopped, it
-    # sets off again slowly (its acceleration limit), and the shorter projection passes
-    # what the cruising one cut by its look-ahead (a doorway's frame, a table's leg).
-    # Recovering at the first stop (backing up, waiting, turning) cost 10-17 s each, 1-4
-    # walks a trial, and after three a walk ended blocked (2026-12-06).
-    blocked_patience: float = 1.5
     path_check_ahead: float = 2.0  # m of path ahead checked for new obstacles
     escape_speed: float = 0.12  # m/s: stepping out of the inscribed zone, away from obstacles
     escape_time: float = 4.0  # s at most per escape
@@ -123,7 +117,6 @@ class _Goal:
     last_reason: str = ""
     escape_until: float = -math.inf
     stepped_back: bool = False  # the start's step back from what the first move met
-    t_blocked: float | None = None  # when the follower's collision stop began (None: moving)
     modes: dict[str, float] = field(default_factory=dict)  # s of robot time per step mode
     objects_off: bool = False  # the floor objects' layer left out for this goal
 
@@ -370,17 +363,7 @@ class Navigator:
         )
         if cmd.done:
             return self._end("reached", "reached", 0.0)
-        if cmd.blocked and g.t_blocked is None:
-            g.t_blocked = now
-        elif not cmd.blocked:
-            g.t_blocked = None
-        early = now - g.t_start < cfg.start_window and g.recoveries == 0 and not g.stepped_back
-        if cmd.blocked and not early and now - g.t_blocked < cfg.blocked_patience:
-            # stand a moment: the follower sets off again slowly where it can
-            return NavStep(0.0, 0.0, 0.0, "active", "stopped: an obstacle close ahead",
-                           cmd.distance_left, new_path, "wait")  # fmt: skip
         if cmd.blocked:
-            g.t_blocked = None
             g.last_reason = "an obstacle in the way"
             early = now - g.t_start < cfg.start_window and g.recoveries == 0
             if early and not g.stepped_back:

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from quadmanip.services.navigation.costmap import Costmap, CostmapConfig
 from quadmanip.services.navigation.grid import GridGeometry, Pose2, compose, transform_points
-from quadmanip.services.navigation.navigator import Navigator, NavigatorConfig
+from quadmanip.services.navigation.navigator import Navigator
 from quadmanip.services.navigation.path_follower import FollowerConfig
 from quadmanip.services.navigation.scan import lidar_mount, scan_points
 from quadmanip.testbench.floor_plan import FloorPlan, simulate_scan, true_floor_plan
@@ -48,7 +48,6 @@ def _run(
     objects: list[tuple[float, float, float]] | None = None,
     marks: tuple[np.ndarray, float] | None = None,
     t0: float = 0.0,
-    config: NavigatorConfig | None = None,
 ) -> tuple[str, str, Pose2, float, int]:
     """Closed loop from robot time ``t0``: (final state, reason, final pose, time, steps
     touching the world); the navigator is appended to ``navs``; ``objects``: floor
@@ -63,7 +62,7 @@ def _run(
     if marks is not None:
         pts, stamp = marks
         cm.update_obstacles(pts, (pts[0, 0], pts[0, 1] - 0.05, 0.0), stamp=stamp)
-    nav = Navigator(config=config, follower=follower)
+    nav = Navigator(follower=follower)
     if navs is not None:
         navs.append(nav)
     pose: Pose2 = start
@@ -316,29 +315,3 @@ def test_a_periodic_replan_keeps_a_free_route_unless_another_is_much_cheaper():
     # cheaper now, and the periodic re-plan takes it
     high = (0.8, 3.2, 0.0)
     assert _route(nav, 3.4, high, cm) == (1.0, True)
-
-
-def test_a_collision_stop_on_the_way_is_waited_out_before_a_recovery(plan):
-    """Pure pursuit cuts a corner by its look-ahead: beside the doorway's frame the
-    projected motion entered the inscribed band where the path did not, the follower
-    stopped, and the navigator started a recovery at once (backing up, waiting, turning:
-    10-17 s, 1-4 walks a tidy-up trial). Stopped a moment, the follower sets off again
-    slowly and passes (``blocked_patience``)."""
-    start, goal = (2.183, 3.059, -1.85), (6.466, 2.961, 1.814)  # living corner -> kitchen
-    runs = {}
-    for patience in (0.0, NavigatorConfig().blocked_patience):
-        navs: list[Navigator] = []
-        state, reason, pose, t, touching = _run(
-            plan, plan.mask, goal, start=start, navs=navs,
-            config=NavigatorConfig(blocked_patience=patience),
-        )  # fmt: skip
-        assert state == "reached", reason
-        assert touching == 0
-        modes = navs[0].last_modes
-        runs[patience] = (t, modes.get("backup", 0.0) + modes.get("turn", 0.0))
-    (t_at_once, recovering), (t_patient, recovering_patient) = runs.values()
-    print(f"\nrecovery at the first stop: {t_at_once:.1f} s ({recovering:.1f} s recovering); "
-          f"after {NavigatorConfig().blocked_patience} s: {t_patient:.1f} s "
-          f"({recovering_patient:.1f} s)")  # fmt: skip
-    assert recovering > 2.0 and recovering_patient == 0.0
-    assert t_patient < t_at_once - 3.0
