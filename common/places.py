@@ -57,6 +57,7 @@ Pose2 = tuple[float, float, float]
 """x, y (m), yaw (rad) in the map frame."""
 
 KINDS: tuple[str, ...] = ("search_floor", "search_table", "deposit", "cabinet", "drawer")
+AREA_FLAGS: tuple[str, ...] = ("keepout", "moves")  # what a place may say of its area
 
 
 class PlacesError(ValueError):
@@ -132,7 +133,7 @@ def load_places(path: str | Path) -> dict[str, Place]:
         where = f"{path}: places.{name}"
         if not isinstance(p, dict):
             raise PlacesError(f"{where}: must be a table")
-        unknown = set(p) - {"kind", "stand", "target", "size", "note", "keepout", "moves"}
+        unknown = set(p) - {"kind", "stand", "target", "size", "note", *AREA_FLAGS}
         if unknown:
             raise PlacesError(f"{where}: unknown keys {sorted(unknown)}")
         kind = p.get("kind")
@@ -143,16 +144,15 @@ def load_places(path: str | Path) -> dict[str, Place]:
         sx, sy, syaw = _floats(p["stand"], 3, f"{where}.stand")
         target = _floats(p["target"], 3, f"{where}.target")
         size = _floats(p.get("size", [0.0, 0.0]), 2, f"{where}.size")
-        keepout = p.get("keepout", False)
-        if not isinstance(keepout, bool):
-            raise PlacesError(f"{where}.keepout: want true or false, got {keepout!r}")
-        if keepout and min(size) <= 0.0:
-            raise PlacesError(f"{where}: keepout needs the area's 'size' [x, y], both > 0")
-        moves = p.get("moves", False)
-        if not isinstance(moves, bool):
-            raise PlacesError(f"{where}.moves: want true or false, got {moves!r}")
-        if moves and min(size) <= 0.0:
-            raise PlacesError(f"{where}: moves needs the area's 'size' [x, y], both > 0")
+        # the flags that say something of the place's area: true needs a size
+        flags = {}
+        for flag in AREA_FLAGS:
+            on = p.get(flag, False)
+            if not isinstance(on, bool):
+                raise PlacesError(f"{where}.{flag}: want true or false, got {on!r}")
+            if on and min(size) <= 0.0:
+                raise PlacesError(f"{where}: {flag} needs the area's 'size' [x, y], both > 0")
+            flags[flag] = on
         places[name] = Place(
             name=name,
             kind=kind,
@@ -160,8 +160,8 @@ def load_places(path: str | Path) -> dict[str, Place]:
             target=(target[0], target[1], target[2]),
             size=(size[0], size[1]),
             note=str(p.get("note", "")),
-            keepout=keepout,
-            moves=moves,
+            keepout=flags["keepout"],
+            moves=flags["moves"],
         )
     return places
 

@@ -1740,13 +1740,9 @@ def test_objects_put_into_one_place_go_to_its_slots_side_by_side() -> None:
     report = _task(house).run()
     assert report.outcome == "done", report.reason
     assert {t.released_in for t in house.things.values()} == {"tray"}
-    tray = PLACES["tray"]
-    left = (-math.sin(tray.stand[2]), math.cos(tray.stand[2]))
-    sides = [
-        (pos[0] - tray.target[0]) * left[0] + (pos[1] - tray.target[1]) * left[1]
-        for pos, _ in _calls(house, "place")
-    ]
-    assert sides == pytest.approx([side for side, _ in CFG.deposits["tray"].slots[:2]])
+    side, slots = _tray_sides()
+    sides = [side(pos) for pos, _ in _calls(house, "place")]
+    assert sides == pytest.approx(slots[:2])
     assert abs(sides[0] - sides[1]) > 0.15  # farther apart than a can's diameter and more
 
 
@@ -1788,11 +1784,8 @@ def test_the_tools_go_into_the_drawer_each_on_a_spot_of_its_own() -> None:
     assert report.outcome == "done", report.reason
     drawer = PLACES[CFG.deposits["drawer"].place]
     assert [t.released_in for t in house.things.values()] == [drawer.name] * 3
-    left = (-math.sin(drawer.stand[2]), math.cos(drawer.stand[2]))
-    sides = sorted(
-        (pos[0] - drawer.target[0]) * left[0] + (pos[1] - drawer.target[1]) * left[1]
-        for pos, _ in _calls(house, "place")
-    )
+    side = _left_of(drawer.name)
+    sides = sorted(side(pos) for pos, _ in _calls(house, "place"))
     # apart by more than the clamp's 12.5 cm width, and the outer ones with the clamp's
     # 16.5 cm length inside the drawer's 64 cm (its inner half width: 0.30 m)
     assert len(sides) == 3
@@ -1808,16 +1801,21 @@ def _two_cans() -> list[Thing]:
     ]
 
 
+def _left_of(name: str) -> Callable[[Sequence[float]], float]:
+    """How far a point lies left of place ``name``'s centre line, seen from its stand."""
+    place = PLACES[name]
+    left = (-math.sin(place.stand[2]), math.cos(place.stand[2]))
+
+    def side(p: Sequence[float]) -> float:
+        return (p[0] - place.target[0]) * left[0] + (p[1] - place.target[1]) * left[1]
+
+    return side
+
+
 def _tray_sides() -> tuple[Callable[[Sequence[float]], float], list[float]]:
     """(how far a point lies left of the tray's centre line, seen from its stand; the
     slots' left offsets)."""
-    tray = PLACES["tray"]
-    left = (-math.sin(tray.stand[2]), math.cos(tray.stand[2]))
-
-    def side(p: Sequence[float]) -> float:
-        return (p[0] - tray.target[0]) * left[0] + (p[1] - tray.target[1]) * left[1]
-
-    return side, [sd for sd, _ in CFG.deposits["tray"].slots]
+    return _left_of("tray"), [sd for sd, _ in CFG.deposits["tray"].slots]
 
 
 def test_a_blocked_stance_at_a_place_backs_off_to_the_next_slot() -> None:

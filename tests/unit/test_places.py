@@ -29,38 +29,32 @@ def test_a_places_signed_distance_is_positive_outside_and_negative_inside():
     assert table.outside_by((7.2, 1.9)) == pytest.approx(-0.3)  # its middle
 
 
-def test_keepout_areas_load_save_and_refuse_an_area_without_a_size(tmp_path):
+@pytest.mark.parametrize(
+    ("flag", "place", "area"),
+    [
+        ("keepout", Place("kitchen_table", "search_table", (7.2, 2.62, -1.5708),
+                          (7.2, 1.9, 0.4), (0.9, 0.6), keepout=True), (6.75, 1.6, 7.65, 2.2)),
+        ("moves", Place("cabinet", "cabinet", (8.56, 1.5, 0.0), (9.46, 1.5, 0.0), (0.6, 0.72),
+                        moves=True), (9.16, 1.14, 9.76, 1.86)),
+    ],
+)  # fmt: skip
+def test_area_flags_load_save_and_refuse_an_area_without_a_size(tmp_path, flag, place, area):
     from quadmanip.common.places import PlacesError, load_places, save_places
 
-    table = Place("kitchen_table", "search_table", (7.2, 2.62, -1.5708), (7.2, 1.9, 0.4),
-                  (0.9, 0.6), keepout=True)  # fmt: skip
-    path = save_places(tmp_path / "a.places.toml", [table])
-    assert "keepout = true" in path.read_text()
-    back = load_places(path)["kitchen_table"]
-    assert back.keepout and back.area == pytest.approx((6.75, 1.6, 7.65, 2.2))
+    path = save_places(tmp_path / "a.places.toml", [place])
+    assert f"{flag} = true" in path.read_text()
+    back = load_places(path)[place.name]
+    assert back.area == pytest.approx(area)
+    assert {f: getattr(back, f) for f in ("keepout", "moves")} == {
+        f: f == flag for f in ("keepout", "moves")
+    }
     bad = tmp_path / "b.places.toml"
-    bad.write_text('[places.t]\nkind = "search_table"\nstand = [0, 0, 0]\ntarget = [1, 1, 0.4]\n'
-                   "keepout = true\n")  # fmt: skip
-    with pytest.raises(PlacesError, match="keepout needs the area's 'size'"):
+    head = f'[places.t]\nkind = "{place.kind}"\nstand = [0, 0, 0]\ntarget = [1, 1, 0.4]\n'
+    bad.write_text(head + f"{flag} = true\n")
+    with pytest.raises(PlacesError, match=f"{flag} needs the area's 'size'"):
         load_places(bad)
-    bad.write_text('[places.t]\nkind = "search_table"\nstand = [0, 0, 0]\ntarget = [1, 1, 0.4]\n'
-                   'size = [1, 1]\nkeepout = "yes"\n')  # fmt: skip
-    with pytest.raises(PlacesError, match="keepout: want true or false"):
-        load_places(bad)
-
-
-def test_moving_scenery_areas_load_save_and_refuse_an_area_without_a_size(tmp_path):
-    from quadmanip.common.places import PlacesError, load_places, save_places
-
-    cab = Place("cabinet", "cabinet", (8.56, 1.5, 0.0), (9.46, 1.5, 0.0), (0.6, 0.72), moves=True)
-    path = save_places(tmp_path / "a.places.toml", [cab])
-    assert "moves = true" in path.read_text()
-    back = load_places(path)["cabinet"]
-    assert back.moves and not back.keepout and back.area == pytest.approx((9.16, 1.14, 9.76, 1.86))
-    bad = tmp_path / "b.places.toml"
-    bad.write_text('[places.c]\nkind = "cabinet"\nstand = [0, 0, 0]\ntarget = [1, 1, 0]\n'
-                   "moves = true\n")  # fmt: skip
-    with pytest.raises(PlacesError, match="moves needs the area's 'size'"):
+    bad.write_text(head + f'size = [1, 1]\n{flag} = "yes"\n')
+    with pytest.raises(PlacesError, match=f"{flag}: want true or false"):
         load_places(bad)
     bad.write_text('[places.c]\nkind = "cabinet"\nstand = [0, 0, 0]\ntarget = [1, 1, 0]\n'
                    'size = [1, 1]\nmoves = 1\n')  # fmt: skip
