@@ -14,6 +14,12 @@ map). It is written once per house, like annotating a floor plan; a drafting too
 (``quadmanip map``, from the house description) may write the first version. Services
 read it; none reads the simulator's world.
 
+A ``table`` is furniture objects may lie on that the task does not search: the table the
+deposit places stand on (``size`` its top, ``target`` its middle at the top's height). An
+object that slips from the fingers at a deposit place lands there, beside its box, and
+is taken up from it as from a search table. A deposit place's ``size`` is its box's
+footprint: what lies within it is in the box.
+
 ``keepout = true`` marks a place's area (``size`` around the target) as furniture the
 robot can neither walk through nor under although its LiDAR sees only part of it: a
 table, whose top lies above the scan's plane and whose legs alone are in the map.
@@ -56,7 +62,14 @@ __all__ = [
 Pose2 = tuple[float, float, float]
 """x, y (m), yaw (rad) in the map frame."""
 
-KINDS: tuple[str, ...] = ("search_floor", "search_table", "deposit", "cabinet", "drawer")
+KINDS: tuple[str, ...] = (
+    "search_floor",
+    "search_table",
+    "table",
+    "deposit",
+    "cabinet",
+    "drawer",
+)
 AREA_FLAGS: tuple[str, ...] = ("keepout", "moves")  # what a place may say of its area
 
 

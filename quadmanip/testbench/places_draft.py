@@ -75,6 +75,15 @@ def draft_places(world_to_map: Pose2 = (0.0, 0.0, 0.0)) -> list[Place]:
         else:
             stand = roomiest(cx, cy, hx, hy, FLOOR_STANDOFF)
             add(s.name, "search_floor", stand, (cx, cy, 0.0), (2 * hx, 2 * hy))
+    for t in world.house.tables:
+        if t.spawn:
+            continue
+        # a table nobody searches (the deposit table): what slips from the fingers at a
+        # deposit place lands on it, and is taken up from the room side (south)
+        hy = t.size[1] / 2
+        stand = _facing(t.center, math.pi / 2, hy + TABLE_EDGE_AHEAD + SEARCH_MARGIN)
+        add(t.name, "table", stand, (*t.center, t.height), t.size)
+    boxes = {c.name: c for c in world.house.containers}
     for r in world.regions:
         if r.body != "world":
             continue
@@ -82,7 +91,8 @@ def draft_places(world_to_map: Pose2 = (0.0, 0.0, 0.0)) -> list[Place]:
         # containers on the deposit table are reached from the room side (south), floor
         # boxes against the south wall from the north
         heading = math.pi / 2 if cz > 0.3 else -math.pi / 2
-        add(r.place, "deposit", _facing((cx, cy), heading, PLACE_REACH), (cx, cy, r.rim))
+        box = boxes[r.place].size[:2] if r.place in boxes else (0.0, 0.0)
+        add(r.place, "deposit", _facing((cx, cy), heading, PLACE_REACH), (cx, cy, r.rim), box)
     handles = {k: data.body(v).xpos.copy() for k, v in world.drawer_handles.items()}
     # the cabinet's x axis points out of its front; the robot faces the other way
     heading = math.radians(world.house.cabinet.yaw) + math.pi

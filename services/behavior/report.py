@@ -66,6 +66,9 @@ class ObjectRecord:
     # (x0, y0, x1, y1) map: the walk it fell from the fingers on, from where it was picked
     # up to where the robot noticed (it may lie anywhere along it); empty: not dropped
     dropped_along: tuple[float, ...] = ()
+    # the deposit place it slipped from the fingers at (the robot stood at it): it lies
+    # beside that place's box, on its table or the floor before it; empty: not there
+    dropped_by: str = ""
     time_spent: float = 0.0  # s of robot time spent on it (approach to let go)
     failures: list[Failure] = field(default_factory=list)
     first_position: Point3 = (math.nan, math.nan, math.nan)  # where it was first seen

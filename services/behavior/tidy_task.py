@@ -403,6 +403,16 @@ class TaskConfig:
     # m: an object dropped on the way is looked for again in the zones this near its path
     drop_search_margin: float = 1.0
     tidy_radius: float = 0.4  # m: tracks this near a deposit place, drawer or cabinet are tidy
+    # An object that slipped from the fingers at a deposit place lies by its box (paper-1,
+    # 2026-12-06: the spoon on the deposit table 15 cm before the pencil case, taken for
+    # tidy, never taken up). A track of its class within ``tidy_radius`` of that place but
+    # farther than ``box_margin`` outside the box's footprint is that object. At the place
+    # the robot looks at the box's table first: a table look from ``drop_table_back``
+    # behind the place's stance over ``drop_table_size`` around the box, then the floor.
+    deposit_drop_radius: float = 1.0  # m: a drop noticed this near a deposit's stand was there
+    box_margin: float = 0.03
+    drop_table_back: float = 0.2
+    drop_table_size: tuple[float, float] = (0.6, 0.4)
     # m: objects are taken from the searched zones grown by this much (one pushed or
     # rolled a little out of its zone is still taken)
     zone_margin: float = 0.3
@@ -928,8 +938,24 @@ class TidyTask:
         return pose
 
     def _tidy(self, obj: SeenObject) -> bool:
-        """Already where objects go (a deposit place, a drawer): not to be picked up."""
-        return any(_dist(obj.position, p) < self.cfg.tidy_radius for p in self.tidy_points)
+        """Already where objects go (a deposit place, a drawer): not to be picked up,
+        unless it is an object that slipped from the fingers there (:meth:`_fell_by`)."""
+        near = any(_dist(obj.position, p) < self.cfg.tidy_radius for p in self.tidy_points)
+        return near and self._fell_by(obj) is None
+
+    def _fell_by(self, obj: SeenObject) -> ObjectRecord | None:
+        """The unfinished record of ``obj``'s class that slipped from the fingers at a
+        deposit place, when ``obj`` lies beside that place's box: within ``tidy_radius``
+        of it, outside its footprint by more than ``box_margin``. None: no such record."""
+        for rec in self.report.objects:
+            place = self.places.get(rec.dropped_by) if rec.dropped_by else None
+            if place is None or rec.label != obj.label or rec.finished or min(place.size) <= 0:
+                continue
+            if place.covers(obj.position, self.cfg.box_margin):
+                continue  # in the box after all
+            if _dist(obj.position, place.target) < self.cfg.tidy_radius:
+                return rec
+        return None
 
     def _record_for(self, obj: SeenObject) -> ObjectRecord | None:
         """The record of this object: same track, or same class near where it was."""
@@ -960,7 +986,7 @@ class TidyTask:
                 < self.cfg.drop_search_margin
             ):
                 return rec
-        return None
+        return self._fell_by(obj)
 
     def _graspable(self) -> list[tuple[SeenObject, ObjectRecord | None]]:
         """Confirmed, known, wanted, untidied objects not given up, with their records."""
@@ -1030,14 +1056,18 @@ class TidyTask:
 
     def _resting(self, p: Point3) -> bool:
         """Whether ``p`` could hold an object at rest: on the floor, or at table height
-        over a search table (within ``zone_margin``). A track at table height anywhere
+        over a table (within ``zone_margin``). A track at table height anywhere
         else floats: a false detection (short-20: a "cracker box" at table height 1.2 m
         from the living table was approached as a table object; the tennis ball lying
         1 m from it was not seen again in that run)."""
         if p[2] <= self.cfg.table_min_z:
             return True
-        tables = (pl for pl in self.places.values() if pl.kind == "search_table")
-        return any(t.covers(p, self.cfg.zone_margin) for t in tables)
+        return any(t.covers(p, self.cfg.zone_margin) for t in self._tables())
+
+    def _tables(self) -> list[Place]:
+        """Every table objects may lie on: the search tables, and those not searched (the
+        deposit table, where an object slipped from the fingers lands)."""
+        return [p for p in self.places.values() if p.kind in ("search_table", "table")]
 
     def _in_zones(self, p: Point3) -> bool:
         """Whether ``p`` lies in a zone the task searches (or a look after a drop), within
@@ -1593,11 +1623,12 @@ class TidyTask:
         return table is not None and rec.position[2] - table.target[2] < 0.5 * self.cfg.tall
 
     def _table_of(self, rec: ObjectRecord) -> Place | None:
-        """The search table a table object lies on (the nearest), None on the floor."""
+        """The table a table object lies on (the one whose top is nearest), None on the
+        floor."""
         if rec.position[2] <= self.cfg.table_min_z:
             return None
-        tables = [p for p in self.places.values() if p.kind == "search_table"]
-        return min(tables, key=lambda p: _dist(p.target, rec.position)) if tables else None
+        tables = self._tables()
+        return min(tables, key=lambda p: p.outside_by(rec.position)) if tables else None
 
     def _facing(self, rec: ObjectRecord, standoff: float | None = None) -> float | None:
         """The heading to stand at for ``rec``: square to its table from the table's stand
@@ -2281,41 +2312,63 @@ class TidyTask:
         """The held object fell: record it (unless ``record`` is False: the caller did),
         and search again where it may lie (the zones near the way from where it was
         picked up to here). Its track where it was picked up is stale, unless it fell
-        right there (``here_picked``): then that track is the object."""
+        right there (``here_picked``), or the track followed the gripper to the deposit
+        place it fell at: then that track is the object."""
         rec = self.target
         assert rec is not None
         self.t_moved = self.robot.now()
         with self._lock:
             rec.dropped = True
         self.last_released = rec
+        here = self._pose()
+        deposit = self.places[self.deposits[rec.place].place]
+        # (a box's: what lies beside a drawer or the cabinet is not told from what is in it)
+        by = min(deposit.size) > 0.0 and _dist(here, deposit.stand) < self.cfg.deposit_drop_radius
         if rec.track_epoch == self.track_epoch and not here_picked:
             for obj in self.robot.objects():
-                if obj.track_id == rec.track_id:
+                if obj.track_id != rec.track_id:
+                    continue
+                if not (by and _dist(obj.position, deposit.target) < self.cfg.tidy_radius):
                     self.stale[rec.track_id] = obj.position
         self.done_tracks.discard(rec.track_id)
         if record:
             self._fail(step, why)
-        here = self._pose()
         start = self.picked_from or here
         with self._lock:
             rec.dropped_along = (start[0], start[1], here[0], here[1])
+            rec.dropped_by = deposit.name if by else ""
         self._search_again_near(start, here)
         self.target = None
-        self._look_where_it_fell(here)
+        self._look_where_it_fell(here, deposit if by else None)
 
-    def _look_where_it_fell(self, here: Pose2) -> None:
+    def _look_where_it_fell(self, here: Pose2, deposit: Place | None = None) -> None:
         """Search the floor around where the grip was lost before any zone: the object
         lies at the robot's feet (it fell from the gripper there), often outside every
-        search zone (by a deposit place). The zone in progress is searched again later."""
+        search zone (by a deposit place). The zone in progress is searched again later.
+        At a ``deposit`` place on a table the table top around its box is looked at
+        first (:class:`TaskConfig` ``box_margin``)."""
         if self.zone is not None and not _synthetic(self.zone.name):
             self.zones_todo.insert(0, self.zone.name)
         back = self.cfg.drop_look_back
         stand = (here[0] - back * math.cos(here[2]), here[1] - back * math.sin(here[2]), here[2])
         size = (self.cfg.drop_look_size, self.cfg.drop_look_size)
-        self.zone = Place(f"{DROP_ZONE}{here[0]:.2f},{here[1]:.2f}", "search_floor", stand,
-                          (here[0], here[1], 0.0), size)  # fmt: skip
+        zone = Place(f"{DROP_ZONE}{here[0]:.2f},{here[1]:.2f}", "search_floor", stand,
+                     (here[0], here[1], 0.0), size)  # fmt: skip
+        tables = [t for t in self._tables() if deposit is not None and t.covers(deposit.target)]
+        if deposit is not None and tables:
+            table = tables[0]
+            # the floor next (a queued zone is one of the places)
+            self.places[zone.name] = zone
+            self.zones_todo.insert(0, zone.name)
+            h, b = table.stand[2], self.cfg.drop_table_back
+            stand = (deposit.stand[0] - b * math.cos(h), deposit.stand[1] - b * math.sin(h), h)
+            x, y = deposit.target[0], deposit.target[1]
+            zone = Place(f"{DROP_ZONE}{table.name}:{x:.2f},{y:.2f}", "search_table", stand,
+                         (x, y, table.target[2]), self.cfg.drop_table_size)  # fmt: skip
+            self.places[zone.name] = zone  # (taken from: _in_zones)
+        self.zone = zone
         self.viewpoints = zone_viewpoints(
-            stand, (here[0], here[1]), size, self.search["search_floor"]
+            zone.stand, (zone.target[0], zone.target[1]), zone.size, self.search[zone.kind]
         )
         self.view_index, self.last_look = 0, None
         self._say(f"looking where it fell ({len(self.viewpoints)} views)")

@@ -243,6 +243,9 @@ class FakeHouse:
         self.place_reach = 0.6  # m: a release point farther off is refused too_far
         # label -> reasons its next places fail with (not rejected: the arm was stopped)
         self.place_failures: dict[str, list[str | Outcome]] = {}
+        # label -> places in which it slips out of the fingers on the way over its box and
+        # lands on the box's table, 15 cm before the box and 8 cm to the side
+        self.place_drops: dict[str, int] = {}
         # class -> the camera whose probe finds nothing graspable of it
         self.no_candidate_from: dict[str, str] = {}
 
@@ -636,6 +639,16 @@ class FakeHouse:
         if self.place_failures.get(self.held.label):
             why = self.place_failures[self.held.label].pop(0)
             return why if isinstance(why, Outcome) else Outcome(False, why)
+        if self.place_drops.get(self.held.label, 0) > 0:
+            self.place_drops[self.held.label] -= 1
+            box = min(PLACES.values(), key=lambda p: math.dist(p.target, position))
+            h = box.stand[2]
+            x = box.target[0] - 0.15 * math.cos(h) + 0.08 * math.sin(h)
+            y = box.target[1] - 0.15 * math.sin(h) - 0.08 * math.cos(h)
+            self.held.position, self.held.on_table = (x, y, 0.404), True
+            self.fell_at.append(self.held.position)
+            self.held = None
+            return Outcome(False, "object_lost on the way to the region (lost)")
         if self.sticky.get(self.held.label, 0) > 0:
             self.sticky[self.held.label] -= 1
             self.stale_grip_until = self.t + self.grip_lag
@@ -1539,6 +1552,45 @@ def test_an_object_dropped_outside_every_zone_along_the_walk_is_taken_up_again()
     assert rec.dropped and rec.placed, rec.failures
     assert _calls(house, "grasp") == ["tomato_soup_can"] * 2
     assert fell.released_in == "tray"
+
+
+def test_an_object_that_slips_out_over_its_box_onto_the_table_is_taken_up_from_there() -> None:
+    # paper-1 (2026-12-06): the spoon slipped out as the arm turned it over the pencil case
+    # and lay on the deposit table 15 cm before the case: within tidy_radius of a deposit
+    # place, so taken for tidy and never taken up
+    spoon = Thing("spoon", 1, (2.5, 1.4, 0.01))
+    house = FakeHouse([spoon])
+    house.place_drops = {"spoon": 1}
+    task = _task(house)
+    report = task.run()
+    assert len(house.fell_at) == 1 and house.fell_at[0][2] > 0.3  # on the deposit table
+    rec = _record(report, "spoon")
+    assert rec.dropped and rec.placed, rec.failures
+    assert rec.dropped_by == "pencil_case"
+    assert _calls(house, "grasp") == ["spoon"] * 2
+    assert spoon.released_in == "pencil_case"
+    # the table look came first: the table-search posture right after the failed place
+    after = house.calls[[c[0] for c in house.calls].index("place") + 1 :]
+    assert [a for c, a in after if c == "move_to_posture"][0] == "table_search"
+
+
+def test_an_object_in_its_box_is_not_taken_for_one_that_slipped_out_beside_it() -> None:
+    # the first marker slips out over the pencil case onto the table; the second, placed
+    # in the case meanwhile, is in the box: only the one beside it is taken up again
+    m1 = Thing("marker", 1, (2.5, 1.4, 0.01))
+    house = FakeHouse([m1])
+    house.place_drops = {"marker": 1}
+    task = _task(house)
+    task.run()
+    case = PLACES["pencil_case"]
+    inside = SeenObject(77, "marker", (case.target[0] + 0.05, case.target[1] + 0.01, 0.42))
+    beside = SeenObject(78, "marker", (case.target[0] - 0.05, case.target[1] - 0.15, 0.404))
+    rec = _record(task.report, "marker")
+    rec.placed = False  # as if still to be taken up
+    assert task._tidy(inside) and not task._tidy(beside)
+    assert task._record_for(beside) is rec
+    rec.placed = True
+    assert task._tidy(beside)
 
 
 def test_an_object_that_slips_out_as_the_arm_moves_to_carry_is_not_carried() -> None:
