@@ -112,6 +112,31 @@ def test_reaches_the_kitchen_through_the_doorway(plan):
     assert sum(modes.values()) == pytest.approx(t, abs=0.1)
 
 
+def test_a_command_that_would_meet_a_corner_is_slowed_before_the_walk_counts_blocked(plan):
+    # kitchen to living room through the doorway: pure pursuit cuts the frame's corner by
+    # its look-ahead, and the full-speed projection met it (a recovery: wait, back up, turn)
+    walks = [((5.43, 3.38, 1.32), (1.02, 1.09, -0.63)), ((6.69, 3.4, 2.56), (1.92, 2.79, 2.81))]
+    recovering, reached, touching = {}, {}, {}
+    for slow in ((), FollowerConfig().collision_slowdowns):
+        recovering[slow] = reached[slow] = touching[slow] = 0
+        for start, goal in walks:
+            for seed in range(3):
+                navs: list[Navigator] = []
+                state, _, _, _, touched = _run(
+                    plan, plan.mask, goal, start=start, navs=navs, seed=seed, limit_s=60,
+                    follower=FollowerConfig(collision_slowdowns=slow),
+                )  # fmt: skip
+                m = navs[0].last_modes
+                recovering[slow] += sum(m.get(k, 0.0) for k in ("wait", "backup", "turn"))
+                reached[slow] += state == "reached"
+                touching[slow] += touched
+    stop, slowed = recovering
+    # measured: 68 s of recoveries and 2 of 6 reached stopping, 20 s and 5 of 6 slowing
+    assert recovering[slowed] < 0.5 * recovering[stop], recovering
+    assert reached[slowed] > reached[stop], reached
+    assert touching[slowed] == touching[stop] == 0
+
+
 def test_a_walk_turns_to_its_goal_yaw_on_the_way_not_at_the_end(plan):
     # 3 m straight on, to stand facing back the way it came (a stance facing its object)
     goal = (3.8, 1.2, math.pi)
