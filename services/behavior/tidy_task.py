@@ -165,6 +165,8 @@ NOT_DETECTED = "not in view: no "
 PROBE_SIDEWAYS = "probe horizontally"
 #: Perception's answer when nothing in the box can be grasped (grasp_pose.py).
 NO_CANDIDATE = "no graspable candidate"
+#: ... when what it sees is wider than the fingers open (grasp_pose.py).
+TOO_WIDE = "too wide"
 #: A rejection of manipulation's place: it believes the gripper is empty.
 NOT_HOLDING = "not_holding"
 
@@ -1873,10 +1875,13 @@ class TidyTask:
             turn = parse_narrow_side(out.reason) if probe.horizontal else None
             if turn is not None and not rec.end_on and self._table_of(rec) is not None:
                 return self._stand_end_on(rec, turn, out.reason)
-            if probe.horizontal and NO_CANDIDATE in out.reason and self._lies_low(rec):
+            side_fails = NO_CANDIDATE in out.reason or TOO_WIDE in out.reason
+            if probe.horizontal and side_fails and self._lies_low(rec):
                 # a tall box knocked onto its side is low enough to be grasped from above
                 # (paper-2, 2026-12-06: the sugar box, tipped over by a grasp that closed on
-                # nothing, 4.5 cm tall; three side probes found nothing, given up)
+                # nothing, 4.5 cm tall; three side probes found nothing, given up; seed-130,
+                # 2026-12-06: the sugar box, slipped out onto the table lying, 17.5 cm long
+                # facing the robot: "too wide" three times, given up)
                 with self._lock:
                     rec.top_probe = True
             elif PROBE_SIDEWAYS in out.reason and not probe.horizontal and self._table_of(rec):
