@@ -946,12 +946,17 @@ class TidyTask:
         return near and self._fell_by(obj) is None
 
     def _fell_by(self, obj: SeenObject) -> ObjectRecord | None:
-        """The unfinished record of ``obj``'s class that slipped from the fingers at a
-        deposit place, when ``obj`` lies beside that place's box: within ``tidy_radius``
-        of it, outside its footprint by more than ``box_margin``. None: no such record."""
+        """The unfinished record that slipped from the fingers at a deposit place, when
+        ``obj`` lies beside that place's box (within ``tidy_radius`` of it, outside its
+        footprint by more than ``box_margin``) and is of a class that goes there too: the
+        detector took the spoon beside the pencil case for a marker (paper-1, 2026-12-06,
+        three tracks); whichever it is, that box is where it goes. None: no such record."""
+        cls = self.classes.get(obj.label)
         for rec in self.report.objects:
             place = self.places.get(rec.dropped_by) if rec.dropped_by else None
-            if place is None or rec.label != obj.label or rec.finished or min(place.size) <= 0:
+            if place is None or cls is None or cls.place != rec.place or rec.finished:
+                continue
+            if min(place.size) <= 0:
                 continue
             if place.covers(obj.position, self.cfg.box_margin):
                 continue  # in the box after all
