@@ -367,7 +367,21 @@ class Executive:
             out: list[Output] = self._watch_payload(obs)
             if prim.done:
                 self._finish(run)
+                out += self._trunk_back(prim)
         return out + self._outputs(cmds)
+
+    def _trunk_back(self, prim: Primitive) -> list[Output]:
+        """A primitive that failed (or was canceled) with the trunk shifted, crouched or
+        raised for it asks locomotion for the nominal pose again (its pitch kept: that
+        is the postures'). Left there, the offset stood under every later stance: the
+        trunk came to rest 4.6 cm beside where the approach had brought it, and each
+        approach after a place that lost the spoon during its trunk shift ended "did not
+        settle" (paper-2, 2026-12-06: 15 approaches, the bowl given up)."""
+        b = self.body
+        if prim.status is Status.SUCCEEDED or (b.x_offset, b.y_offset, b.z_offset) == (0, 0, 0):
+            return []
+        self.body = BodyPoseRequest(0.0, 0.0, 0.0, b.pitch)
+        return [self.body]
 
     def stop(self, obs: Observation | None) -> list[Output]:
         """The service stops: a running goal is canceled and the arm held where it is."""

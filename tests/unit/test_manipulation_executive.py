@@ -255,6 +255,33 @@ def test_a_pitched_posture_lifts_the_nose_and_the_next_grasp_levels_the_trunk_fi
         assert [c.pitch for c in plant.sent if isinstance(c, BodyPoseRequest)] == want
 
 
+def test_a_grasp_that_fails_with_the_trunk_crouched_stands_it_back_up():
+    """paper-2 (2026-12-06): a place lost the spoon during its trunk shift (4.6 cm to the
+    side) and the offset stayed; every approach after it ended "did not settle". A
+    primitive that fails with the trunk offset asks for the nominal pose as it ends."""
+    ex = _executive()
+    plant = Plant(POSTURES["stow"], width=0.0)  # the fingers close on nothing
+    req = _floor_grasp(ex)
+    assert ex.accept(req, plant.obs()).accepted
+    prim = ex.start()
+    assert prim is not None
+    plant.run(ex)
+    assert prim.status is Status.FAILED and "grasp_missed" in prim.reason
+    bodies = [c for c in plant.sent if isinstance(c, BodyPoseRequest)]
+    assert any(b.z_offset < -0.01 or abs(b.x_offset) > 0.01 for b in bodies)  # it crouched
+    assert bodies[-1] == BodyPoseRequest(0.0, 0.0, 0.0, 0.0)
+    assert ex.body == BodyPoseRequest()
+    # one that succeeds keeps what it ends with (a grasp stands back up itself)
+    ok = _executive()
+    plant = Plant(POSTURES["stow"])
+    assert ok.accept(req, plant.obs()).accepted
+    prim = ok.start()
+    assert prim is not None
+    plant.run(ok)
+    assert prim.status is Status.SUCCEEDED
+    assert ok.body == BodyPoseRequest()
+
+
 def test_two_goals_at_once_one_accepted_one_busy(monkeypatch):
     """Two goals for two actions at the same moment: exactly one is accepted, the other is
     rejected "busy", however long planning takes (a check-then-set would let both in)."""
