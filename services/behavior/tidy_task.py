@@ -407,8 +407,9 @@ class TaskConfig:
     tidy_radius: float = 0.4  # m: tracks this near a deposit place, drawer or cabinet are tidy
     # An object that slipped from the fingers at a deposit place lies by its box (paper-1,
     # 2026-12-06: the spoon on the deposit table 15 cm before the pencil case, taken for
-    # tidy, never taken up). A track of its class within ``tidy_radius`` of that place but
-    # farther than ``box_margin`` outside the box's footprint is that object. At the place
+    # tidy, never taken up). A track of a class that goes into that box, within
+    # ``tidy_radius`` of it but farther than ``box_margin`` outside its footprint, is that
+    # object (:meth:`TidyTask._fell_by`). At the place
     # the robot looks at the box's table first: a table look from ``drop_table_back``
     # behind the place's stance over ``drop_table_size`` around the box, then the floor.
     deposit_drop_radius: float = 1.0  # m: a drop noticed this near a deposit's stand was there
@@ -2356,7 +2357,7 @@ class TidyTask:
         lies at the robot's feet (it fell from the gripper there), often outside every
         search zone (by a deposit place). The zone in progress is searched again later.
         At a ``deposit`` place on a table the table top around its box is looked at
-        first (:class:`TaskConfig` ``box_margin``)."""
+        first (``drop_table_back``, ``drop_table_size``), the floor next."""
         if self.zone is not None and not _synthetic(self.zone.name):
             self.zones_todo.insert(0, self.zone.name)
         back = self.cfg.drop_look_back

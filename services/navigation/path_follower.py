@@ -84,7 +84,6 @@ class FollowerConfig:
     # pure pursuit cuts a corner by its look-ahead, and at full speed the projection of a
     # doorway's or a table leg's corner ended the walk in a recovery (backing up, waiting,
     # turning: 4-6 s each, 1-4 per trial). Slower, it rounds the corner. Empty: stop.
-    # (Tracking only.)
     collision_slowdowns: tuple[float, ...] = (0.5, 0.25)
     search_window: float = 1.0  # m: how far along the path the progress search looks
     # The body turns to the goal's yaw as it walks the path's last stretch, stepping along
