@@ -954,10 +954,9 @@ class TidyTask:
         three tracks); whichever it is, that box is where it goes. None: no such record."""
         cls = self.classes.get(obj.label)
         for rec in self.report.objects:
+            # (dropped_by names only places with a box's footprint: _dropped)
             place = self.places.get(rec.dropped_by) if rec.dropped_by else None
             if place is None or cls is None or cls.place != rec.place or rec.finished:
-                continue
-            if min(place.size) <= 0:
                 continue
             if place.covers(obj.position, self.cfg.box_margin):
                 continue  # in the box after all
@@ -2365,9 +2364,10 @@ class TidyTask:
         size = (self.cfg.drop_look_size, self.cfg.drop_look_size)
         zone = Place(f"{DROP_ZONE}{here[0]:.2f},{here[1]:.2f}", "search_floor", stand,
                      (here[0], here[1], 0.0), size)  # fmt: skip
-        tables = [t for t in self._tables() if deposit is not None and t.covers(deposit.target)]
-        if deposit is not None and tables:
-            table = tables[0]
+        table = None
+        if deposit is not None:
+            table = next((t for t in self._tables() if t.covers(deposit.target)), None)
+        if deposit is not None and table is not None:
             # the floor next (a queued zone is one of the places)
             self.places[zone.name] = zone
             self.zones_todo.insert(0, zone.name)

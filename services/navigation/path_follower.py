@@ -251,16 +251,13 @@ class PathFollower:
             # let the robot run on into the inscribed band, toward a wall)
             lag = max(cfg.response_lag, 1e-6)
             decay = lag / h * (1.0 - math.exp(-h / lag))
-            tries = [(vx, vy, wz)]
-            for k in cfg.collision_slowdowns:
-                # and it must still stop short after it: the stop under the slowed speed
-                # (lag x speed) comes on top
+            for k in (1.0, *cfg.collision_slowdowns):
                 c = np.array([k * vx, k * vy, k * wz])
-                tries.append(tuple(float(v) for v in c + (self._vel - c) * decay + c * lag / h))
-            for i, moved in enumerate(tries):
-                if not self.collision(pose, project_motion(pose, *moved, h)):
-                    k = 1.0 if i == 0 else cfg.collision_slowdowns[i - 1]
-                    vx, vy, wz = k * vx, k * vy, k * wz
+                # (and it must still stop short after it: the stop under the slowed speed,
+                # lag x speed, comes on top)
+                moved = c if k == 1.0 else c + (self._vel - c) * decay + c * lag / h
+                if not self.collision(pose, project_motion(pose, *map(float, moved), h)):
+                    vx, vy, wz = (float(v) for v in c)
                     break
             else:
                 self._emit((0.0, 0.0, 0.0), dt)
