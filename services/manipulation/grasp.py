@@ -20,7 +20,8 @@ Sequence (Algorithm 6, with the corrections noted):
    and descend with the arm, which reaches the same pose with the body still while the
    fingers close (more robust against pushing the object).
 3. close with the configured force, verify holding from gap and effort, lift ``lift_height``
-   (10 cm) along a vertical line, verify still holding, restore the nominal body pose.
+   (15 cm) along a vertical line, verify still holding, send the body back to its nominal
+   pose (not waited for).
 
 The wrist roll for a vertical grasp is ``-yaw`` (``yaw = 0``: fingers close along the body
 y axis; the symmetric ``roll + pi`` is used when the wrist range needs it). Horizontal grasps
@@ -276,6 +277,8 @@ class GraspPrimitive(Primitive):
         assert self._last_obs is not None
         self.t_lifted = self._last_obs.t
         if self.restore_body:
+            # the trunk back to its stance, not waited for: what follows (the carry
+            # posture move, a walk) watches the grip itself, and the trunk rises or
+            # recentres while the arm swings to carry (1 s a grasp)
             self.stage("restore body pose", 0.9)
-            yield from self.move_body(0.0, 0.0, 0.0)
-            self.require_holding("while restoring the body")
+            yield from self.move_body(0.0, 0.0, 0.0, settle=False)

@@ -106,6 +106,32 @@ def test_table_grasp_lift_hold(name, approach):
     _check_grasp(h, name, TABLE_HEIGHT, approach)
 
 
+def test_a_grasp_ends_once_the_trunk_is_sent_back_and_the_object_stays_held():
+    # a crouched floor grasp sends the trunk back to its stance as its last step and ends
+    # (the carry posture move follows while the trunk rises): 1 s a grasp not waited
+    name = "rubiks_cube"
+    o = CAT.objects[name]
+    h = SimHarness([PlacedObject(name, (0.36, 0.03, o.size[2] / 2 + 0.001), yaw=0.4)])
+    h.settle(0.3)
+    z0 = h.object_pos(name)[2]
+    requests: list[tuple[float, BodyPoseRequest]] = []
+    request_body = h.request_body
+
+    def record(req: BodyPoseRequest) -> None:
+        requests.append((float(h.data.time), req))
+        request_body(req)
+
+    h.request_body = record  # type: ignore[method-assign]
+    g = _grasp(h, name, 0.0, "vertical")
+    assert g.status is Status.SUCCEEDED, g.reason
+    assert requests[0][1].z_offset < -0.01  # (it crouched)
+    t_back, back = requests[-1]
+    assert (back.x_offset, back.y_offset, back.z_offset) == (0.0, 0.0, 0.0)
+    assert g.t_end - t_back < 0.05
+    assert _held_for(h, name, z0, 2.0) >= 0.10
+    assert g.monitor.holding
+
+
 # object, where it lies, deposit container (its size and walls from configs/house.toml)
 # (place yaw pi/2: the fingers close along x, so the marker lies along the pencil case)
 PLACES = [
