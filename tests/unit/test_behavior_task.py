@@ -247,6 +247,9 @@ class FakeHouse:
         # lands on the box's table, 15 cm before the box and 8 cm to the side
         self.place_drops: dict[str, int] = {}
         self.place_drop_seen_as = ""  # the class the memory gives it where it fell ("": its own)
+        # label -> places after which it topples out of its box and off the table, the
+        # place done: it lies on the floor 0.35 m before the box, seen there (a new track)
+        self.place_topples: dict[str, int] = {}
         # class -> the camera whose probe finds nothing graspable of it
         self.no_candidate_from: dict[str, str] = {}
         self.no_candidate_why = "no graspable candidate"  # or "too wide"
@@ -661,6 +664,20 @@ class FakeHouse:
             self.stuck[self.held.label] -= 1
             self.stale_grip_until = self.t + self.grip_lag
             return Outcome(False, "object_stuck: the fingers still hold something after release")
+        if self.place_topples.get(self.held.label, 0) > 0:
+            self.place_topples[self.held.label] -= 1
+            box = min(PLACES.values(), key=lambda p: math.dist(p.target, position))
+            h = box.stand[2]
+            fell = (box.target[0] - 0.35 * math.cos(h), box.target[1] - 0.35 * math.sin(h), 0.04)
+            self.held.position, self.held.on_table, self.held.released_in = fell, False, "floor"
+            self.fell_at.append(fell)
+            self.memory.pop(self.held.track_id, None)
+            del self.things[self.held.track_id]
+            self.held.track_id += 100
+            self.things[self.held.track_id] = self.held
+            self.memory[self.held.track_id] = SeenObject(self.held.track_id, self.held.label, fell)
+            self.held = None
+            return Outcome(True)
         tidy = [p for p in PLACES.values() if p.kind in ("deposit", "drawer")]
         # nearest in 3-D: the tools' drawer's side slots lie over the lower drawers' handles
         near = min(tidy, key=lambda p: math.dist(p.target, position))
@@ -1599,6 +1616,47 @@ def test_an_object_in_its_box_is_not_taken_for_one_that_slipped_out_beside_it() 
     assert task._record_for(beside) is rec and task._record_for(can) is None
     rec.placed = True
     assert task._tidy(beside)
+
+
+def test_an_object_that_topples_out_of_its_box_onto_the_floor_is_taken_up_again() -> None:
+    # seed-132 (2026-12-06): the sugar box, released standing in the tray beside two cans,
+    # toppled over the near wall and off the deposit table; its track on the floor 0.35 m
+    # from the tray's middle was within tidy_radius of it, taken for tidy, and the task
+    # counted the box placed
+    box = Thing("sugar_box", 1, (2.5, 1.4, 0.08))
+    house = FakeHouse([box])
+    house.place_topples = {"sugar_box": 1}
+    task = _task(house)
+    report = task.run()
+    assert len(house.fell_at) == 1 and house.fell_at[0][2] < 0.25  # on the floor
+    rec = _record(report, "sugar_box")
+    assert rec.placed and rec.dropped
+    assert [f.reason for f in rec.failures] == ["fell out of tray: on the floor 0.35 m from it"]
+    assert _calls(house, "grasp") == ["sugar_box"] * 2
+    assert box.released_in == "tray"
+    # the second time into another slot of the tray
+    releases = [a[0] for c, a in house.calls if c == "place"]
+    assert math.dist(releases[0][:2], releases[1][:2]) > 0.05
+
+
+def test_what_lies_on_the_floor_by_a_box_on_a_table_is_not_in_it() -> None:
+    # a track of a placed object's class on the floor near its box is that object,
+    # fallen out; in the box (at table height) it is tidy; another class beside the box on
+    # the floor is nobody's record, and a floor box's neighbour is told by nothing
+    house = FakeHouse([Thing("tomato_soup_can", 1, (2.5, 1.4, 0.05))])
+    task = _task(house)
+    task.run()
+    tray, green = PLACES["tray"], PLACES["green_box"]
+    rec = _record(task.report, "tomato_soup_can")
+    assert rec.placed
+    inside = SeenObject(77, "tomato_soup_can", (tray.target[0], tray.target[1], 0.45))
+    floor = SeenObject(78, "tomato_soup_can", (tray.target[0] + 0.1, tray.target[1] - 0.4, 0.04))
+    other = SeenObject(79, "coffee_can", floor.position)
+    by_green = SeenObject(80, "brick", (green.target[0], green.target[1] + 0.3, 0.03))
+    assert task._tidy(inside) and not task._tidy(floor) and not task._tidy(other)
+    assert task._tidy(by_green)
+    assert task._fell_out(inside) is None and task._fell_out(floor) is rec
+    assert task._fell_out(other) is None
 
 
 def test_an_object_that_slips_out_as_the_arm_moves_to_carry_is_not_carried() -> None:
