@@ -135,6 +135,13 @@ class ObjectClass:
     place: str  # the catalogue's deposit place (pencil_case, tray, drawer, ...)
     height: float
     long_side: float
+    short_side: float = 0.0  # of its resting footprint, as long_side
+
+    def across(self, above: float) -> bool:
+        """Whether it goes into a place turned across the robot: its footprint longer than
+        ``above`` (the place's ``across_above``) and than it is wide. A round one (a can)
+        goes in as held: the drops that chose the tray's slots put the cans in so."""
+        return self.long_side > above and self.long_side > self.short_side
 
 
 #: Name prefix of the search "zone" around where a held object fell (not a places-file zone).
@@ -201,6 +208,7 @@ def classes_from_catalogue(catalogue: Catalogue) -> dict[str, ObjectClass]:
             place=catalogue.place_of(name),
             height=float(spec.size[2]),
             long_side=float(max(spec.size[0], spec.size[1])),
+            short_side=float(min(spec.size[0], spec.size[1])),
         )
         for name, spec in catalogue.objects.items()
     }
@@ -2250,7 +2258,7 @@ class TidyTask:
         # a long object goes in along the place's long side, across the robot; the others
         # with the fingers along the body y (yaw 0): the carry turned the wrist (manipulation's
         # held_across), the place turns it back
-        yaw = math.pi / 2 if self.classes[rec.label].long_side > dep.across_above else 0.0
+        yaw = math.pi / 2 if self.classes[rec.label].across(dep.across_above) else 0.0
         return point, place.stand[2], yaw
 
     def _carry(self) -> Step:
