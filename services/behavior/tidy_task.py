@@ -152,6 +152,8 @@ RELOOK_ZONE = "relook-at:"
 #: stands close to where it should, and the probe or place that follows plans from the
 #: pose it has (and asks for a step when out of reach).
 UNSETTLED = "did not settle"
+#: ... how far off it stopped, when it stopped making progress (navigation/node.py)
+UNSETTLED_OFF = re.compile(r"did not settle in time \(no progress for [0-9.]+ s, ([0-9.]+) cm")
 #: Manipulation's refusal of a pull longer than the arm reaches (manipulation/drawer.py).
 ARM_PULL = re.compile(r"arm reaches ([0-9.]+) m only")
 MIN_PULL = 0.05  # m: a shorter pull is not worth asking for
@@ -371,6 +373,12 @@ class TaskConfig:
     # the 3 cm the pads reach in past the end face); the stance is probe_standoff behind it
     end_on_grasp_ahead: float = 0.05
     tall: float = 0.12  # m: table objects taller than this are probed from the side
+    # m: a floor object's approach that stopped making progress farther than this from its
+    # stance met furniture the LiDAR does not see (a table's top): it is approached from
+    # the next side, as after a stop by furniture (paper-1, 2026-12-06: the Rubik's cube
+    # 26 cm from the deposit table's end; three approaches from one side stopped 12-15 cm
+    # short, each grasp refused 13-15 cm to the side, 60 s)
+    stopped_far: float = 0.08
     probe_floor_posture: str = "probe_floor"
     probe_table_posture: str = "probe_table"
     probe_side_posture: str = "probe_tall"
@@ -654,6 +662,13 @@ def _segment_dist(p: Sequence[float], a: Sequence[float], b: Sequence[float]) ->
 
 def _dist(a: Sequence[float], b: Sequence[float]) -> float:
     return math.hypot(a[0] - b[0], a[1] - b[1])
+
+
+def _stopped_off(reason: str) -> float:
+    """How far (m) short of its stance an approach stopped making progress (0: it did
+    not, or the reason does not say)."""
+    m = UNSETTLED_OFF.search(reason)
+    return float(m.group(1)) / 100.0 if m else 0.0
 
 
 def _bad_goal(reason: str) -> bool:
@@ -1842,7 +1857,13 @@ class TidyTask:
         )
         if out.ok and turn_free and table is not None:
             self._keep_turned_stance(rec, table)
-        if not out.ok and FOOTPRINT in out.reason and table is None:
+        stopped_far = _stopped_off(out.reason) > self.cfg.stopped_far
+        if stopped_far and table is None:
+            with self._lock:
+                rec.failures.append(
+                    Failure(Step.APPROACH.value, f"approach: {out.reason}", self.robot.now())
+                )
+        if not out.ok and (FOOTPRINT in out.reason or stopped_far) and table is None:
             # it stands against furniture (by a deposit place, a table's leg), and the
             # approach's straight line leads into it: the planner's path leads clear first
             # (paper-2: four such stops within a second gave an object up). After a walk,
@@ -1851,7 +1872,10 @@ class TidyTask:
             # from the same side)
             self._posture(self.cfg.walk_posture)
             turns = self.cfg.walk_sides
-            k = int(walked) + sum(FOOTPRINT in f.reason for f in rec.failures)
+            k = int(walked) + sum(
+                FOOTPRINT in f.reason or _stopped_off(f.reason) > self.cfg.stopped_far
+                for f in rec.failures
+            )
             walk = self._walk_near(rec, turns[min(k, len(turns) - 1) :])
             if walk.ok:
                 self._refresh_target()
