@@ -898,9 +898,10 @@ class TidyTask:
         self.posture = name if out.ok else ""
         return out
 
-    def _fail(self, step: Step, reason: str) -> bool:
-        """Record a failure of the target; True when it is given up by that."""
-        rec = self.target
+    def _fail(self, step: Step, reason: str, rec: ObjectRecord | None = None) -> bool:
+        """Record a failure of ``rec`` (the target by default); True when it is given up
+        by that."""
+        rec = rec or self.target
         assert rec is not None
         with self._lock:
             rec.failures.append(Failure(step.value, reason, self.robot.now()))
@@ -1020,7 +1021,7 @@ class TidyTask:
             rec.dropped = True
             rec.position = obj.position
             rec.track_id, rec.track_epoch = obj.track_id, self.track_epoch
-            rec.failures.append(Failure(Step.VERIFY.value, why, self.robot.now()))
+        self._fail(Step.VERIFY, why, rec)  # (an attempt: it cannot fall out for ever)
         self.slot_skips[id(rec)] = self.slot_skips.get(id(rec), 0) + 1
         if self.last_released is rec:
             self.last_released = None

@@ -1660,6 +1660,16 @@ def test_an_object_that_topples_out_of_its_box_onto_the_floor_is_taken_up_again(
     assert math.dist(releases[0][:2], releases[1][:2]) > 0.05
 
 
+def test_an_object_that_topples_out_every_time_is_given_up() -> None:
+    box = Thing("sugar_box", 1, (2.5, 1.4, 0.08))
+    house = FakeHouse([box])
+    house.place_topples = {"sugar_box": 99}
+    report = _task(house).run()
+    rec = _record(report, "sugar_box")
+    assert rec.given_up and not rec.placed
+    assert len(_calls(house, "grasp")) == CFG.task.max_attempts
+
+
 def test_what_lies_on_the_floor_by_a_box_on_a_table_is_not_in_it() -> None:
     # a track of a placed object's class on the floor near its box is that object,
     # fallen out; in the box (at table height) it is tidy; another class beside the box on
