@@ -152,8 +152,9 @@ RELOOK_ZONE = "relook-at:"
 #: stands close to where it should, and the probe or place that follows plans from the
 #: pose it has (and asks for a step when out of reach).
 UNSETTLED = "did not settle"
-#: ... how far off it stopped, when it stopped making progress (navigation/node.py)
-UNSETTLED_OFF = re.compile(r"did not settle in time \(no progress for [0-9.]+ s, ([0-9.]+) cm")
+#: ... how far off it stood when it stopped making progress, or ran out of time
+#: (navigation/node.py)
+UNSETTLED_OFF = re.compile(r"did not settle in time \((?:no progress for [0-9.]+ s, )?([0-9.]+) cm")
 #: Manipulation's refusal of a pull longer than the arm reaches (manipulation/drawer.py).
 ARM_PULL = re.compile(r"arm reaches ([0-9.]+) m only")
 MIN_PULL = 0.05  # m: a shorter pull is not worth asking for
@@ -373,11 +374,11 @@ class TaskConfig:
     # the 3 cm the pads reach in past the end face); the stance is probe_standoff behind it
     end_on_grasp_ahead: float = 0.05
     tall: float = 0.12  # m: table objects taller than this are probed from the side
-    # m: a floor object's approach that stopped making progress farther than this from its
-    # stance met furniture the LiDAR does not see (a table's top): it is approached from
-    # the next side, as after a stop by furniture (paper-1, 2026-12-06: the Rubik's cube
-    # 26 cm from the deposit table's end; three approaches from one side stopped 12-15 cm
-    # short, each grasp refused 13-15 cm to the side, 60 s)
+    # m: a floor object's approach that stopped making progress (or ran out of time)
+    # farther than this from its stance met furniture the LiDAR does not see (a table's
+    # top): it is approached from the next side, as after a stop by furniture (paper-1,
+    # 2026-12-06: the Rubik's cube 26 cm from the deposit table's end; three approaches
+    # from one side stopped 12-15 cm short, each grasp refused 13-15 cm to the side, 60 s)
     stopped_far: float = 0.08
     probe_floor_posture: str = "probe_floor"
     probe_table_posture: str = "probe_table"
