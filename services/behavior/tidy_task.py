@@ -386,6 +386,11 @@ class TaskConfig:
     probe_standoff: float = 0.36  # m: object centre ahead of the base to probe and grasp
     grasp_ahead: tuple[float, float] = (0.33, 0.40)  # m: a grasp point in this band is reachable
     side_probe_back: float = 0.50  # m farther back for the front camera (below a table top)
+    # m farther back for a tall object on the floor (taller than ``tall``), still in the
+    # grasp's reach (``grasp_ahead``): a standing cracker box shows a 16 cm face, 8 cm
+    # nearer the front feet than its middle, and an approach knocked one over onto its
+    # 16 x 21 cm face, which nothing grasps (paper-1, 2026-12-06, twice)
+    tall_floor_back: float = 0.03
     step_back: float = 0.08  # m stepped back when the arm is too close
     step_closer: float = 0.05  # m stepped in when it is too far
     reach_resolution: float = 0.01  # m: a narrower band of refused stances is given up
@@ -1696,9 +1701,10 @@ class TidyTask:
         camera; on a table, low ones too, tall ones from the side with the front camera
         from farther back (it sits below the table top)."""
         c = self.cfg
-        if rec.position[2] <= c.table_min_z:
-            return _Probe(c.probe_floor_posture, "gripper_camera", c.probe_standoff, False)
         tall = self.classes[rec.label].height > c.tall
+        if rec.position[2] <= c.table_min_z:
+            back = c.tall_floor_back if tall else 0.0
+            return _Probe(c.probe_floor_posture, "gripper_camera", c.probe_standoff + back, False)
         if (tall and not rec.top_probe) or rec.side_probe:
             return _Probe(
                 c.probe_side_posture,

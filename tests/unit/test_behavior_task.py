@@ -2949,6 +2949,24 @@ def test_the_sugar_box_goes_into_the_tray_across_and_a_can_as_held() -> None:
     assert yaws == {"sugar_box": pytest.approx(math.pi / 2), "coffee_can": 0.0}
 
 
+def test_a_tall_object_on_the_floor_is_approached_from_a_little_farther_back() -> None:
+    # paper-1 (2026-12-06): the standing cracker box, 16 cm of it facing the robot, was
+    # knocked onto its 16 x 21 cm face by an approach to 0.36 m; nothing grasps it so
+    where = {"cracker_box": (3.0, 1.0, 0.105), "tomato_soup_can": (2.4, 1.6, 0.05)}
+    house = FakeHouse([Thing(name, i, p) for i, (name, p) in enumerate(where.items(), 1)])
+    report = _task(house).run()
+    assert all(r.placed for r in report.objects)
+    first: dict[str, float] = {}
+    for target, standoff, _ in _calls(house, "approach"):
+        for name, p in where.items():
+            if math.dist(target[:2], p[:2]) < 0.05:
+                first.setdefault(name, standoff)
+    c = CFG.task
+    assert first["cracker_box"] == pytest.approx(c.probe_standoff + c.tall_floor_back)
+    assert first["tomato_soup_can"] == pytest.approx(c.probe_standoff)
+    assert c.probe_standoff + c.tall_floor_back <= c.grasp_ahead[1]
+
+
 @pytest.mark.parametrize(
     "why", ["no progress for 10 s, 14.6 cm and 17.8 deg off", "14.3 cm and 19.8 deg off"]
 )
