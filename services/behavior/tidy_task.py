@@ -1045,7 +1045,13 @@ class TidyTask:
             place = self.places.get(rec.dropped_by) if rec.dropped_by else None
             if place is None or cls is None or cls.place != rec.place or rec.finished:
                 continue
-            if place.covers(obj.position, self.cfg.box_margin):
+            # a class nothing of which was put into that box can only be the dropped object,
+            # wherever its track lies by the box (paper-2, 2026-12-06: the spoon, taken for
+            # a marker 6 cm before the pencil case, its track within the footprint's margin
+            # and taken for in it; no marker was in the scene)
+            put_in = any(r.placed and r.place == rec.place and r.label == obj.label
+                         for r in self.report.objects)  # fmt: skip
+            if put_in and place.covers(obj.position, self.cfg.box_margin):
                 continue  # in the box after all
             if _dist(obj.position, place.target) < self.cfg.tidy_radius:
                 return rec

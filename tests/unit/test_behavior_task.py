@@ -253,6 +253,7 @@ class FakeHouse:
         # lands on the box's table, 15 cm before the box and 8 cm to the side
         self.place_drops: dict[str, int] = {}
         self.place_drop_seen_as = ""  # the class the memory gives it where it fell ("": its own)
+        self.place_drop_at = (0.15, 0.08)  # m before the box's middle, and to the side
         # label -> places after which it topples out of its box and off the table, the
         # place done: it lies on the floor 0.35 m before the box, seen there (a new track)
         self.place_topples: dict[str, int] = {}
@@ -670,8 +671,9 @@ class FakeHouse:
             self.place_drops[self.held.label] -= 1
             box = min(PLACES.values(), key=lambda p: math.dist(p.target, position))
             h = box.stand[2]
-            x = box.target[0] - 0.15 * math.cos(h) + 0.08 * math.sin(h)
-            y = box.target[1] - 0.15 * math.sin(h) - 0.08 * math.cos(h)
+            before, side = self.place_drop_at
+            x = box.target[0] - before * math.cos(h) + side * math.sin(h)
+            y = box.target[1] - before * math.sin(h) - side * math.cos(h)
             self.held.position, self.held.on_table = (x, y, 0.404), True
             self.fell_at.append(self.held.position)
             if self.place_drop_seen_as:
@@ -1620,6 +1622,23 @@ def test_an_object_that_slips_out_over_its_box_onto_the_table_is_taken_up_from_t
     assert [a for c, a in after if c == "move_to_posture"][0] == "table_search"
 
 
+def test_an_object_that_slips_out_just_before_its_box_is_taken_up_from_there() -> None:
+    # paper-2 (2026-12-06): the spoon slipped out as the place shifted the trunk and lay
+    # 6 cm before the pencil case (its footprint 12 cm deep); the detector took it for a
+    # marker there, its track lay within the footprint's 3 cm margin and was taken for
+    # in the case; no marker was in the scene, and the task ended without the spoon
+    spoon = Thing("spoon", 1, (2.5, 1.4, 0.01))
+    house = FakeHouse([spoon])
+    house.place_drops = {"spoon": 1}
+    house.place_drop_seen_as = "marker"
+    house.place_drop_at = (0.075, 0.0)
+    report = _task(house).run()
+    rec = _record(report, "spoon")
+    assert rec.dropped and rec.placed, rec.failures
+    assert _calls(house, "grasp") == ["spoon"] * 2
+    assert spoon.released_in == "pencil_case"
+
+
 def test_an_object_in_its_box_is_not_taken_for_one_that_slipped_out_beside_it() -> None:
     # the first marker slips out over the pencil case onto the table; the second, placed
     # in the case meanwhile, is in the box: only the one beside it is taken up again
@@ -1634,8 +1653,15 @@ def test_an_object_in_its_box_is_not_taken_for_one_that_slipped_out_beside_it() 
     can = SeenObject(79, "tomato_soup_can", beside.position)  # goes to the tray
     rec = _record(task.report, "marker")
     rec.placed = False  # as if still to be taken up
+    second = replace(rec, track_id=99, placed=True, dropped_by="")  # the one in the case
+    task.report.objects.append(second)
     assert task._tidy(inside) and not task._tidy(beside) and task._tidy(can)
     assert task._record_for(beside) is rec and task._record_for(can) is None
+    # with no marker put into the case, a marker track by it can only be the dropped one,
+    # wherever it lies (paper-2, 2026-12-06: the spoon, taken for a marker, 6 cm before
+    # the case, its track within the footprint's margin)
+    task.report.objects.remove(second)
+    assert not task._tidy(inside) and task._record_for(inside) is rec
     rec.placed = True
     assert task._tidy(beside)
 
