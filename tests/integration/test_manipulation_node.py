@@ -101,7 +101,14 @@ def test_actions_reject_run_and_cancel(zenoh_router, spawn, bus_factory):
     s = state.get()
     q_b = np.asarray(s.joints.q[12:16])
     assert np.max(np.abs(q_b - q_a)) < 0.01  # held still
-    assert np.max(np.abs(np.asarray(s.joints.dq[12:16]))) < 0.05
+    # and at rest: the median of five samples 0.1 s apart (one sample of the servo's
+    # jitter read 0.061 rad/s on a loaded machine, the arm 0.01 rad from where it was)
+    speeds = []
+    for _ in range(5):
+        t3 = sim_time()
+        _wait(lambda t3=t3: sim_time() > t3 + 0.1, 60.0, "sim stalled", procs)
+        speeds.append(float(np.max(np.abs(np.asarray(state.get().joints.dq[12:16])))))
+    assert float(np.median(speeds)) < 0.05, speeds
     # and it stopped well short of the stow posture it was heading to
     assert np.max(np.abs(q_b - target["stow"])) > 0.3
 
