@@ -1049,8 +1049,10 @@ class TidyTask:
             # wherever its track lies by the box (paper-2, 2026-12-06: the spoon, taken for
             # a marker 6 cm before the pencil case, its track within the footprint's margin
             # and taken for in it; no marker was in the scene)
-            put_in = any(r.placed and r.place == rec.place and r.label == obj.label
-                         for r in self.report.objects)  # fmt: skip
+            put_in = any(
+                r.placed and r.place == rec.place and r.label == obj.label
+                for r in self.report.objects
+            )
             if put_in and place.covers(obj.position, self.cfg.box_margin):
                 continue  # in the box after all
             if _dist(obj.position, place.target) < self.cfg.tidy_radius:
