@@ -107,14 +107,8 @@ def test_table_grasp_lift_hold(name, approach):
     _check_grasp(h, name, TABLE_HEIGHT, approach)
 
 
-def test_a_grasp_ends_once_the_trunk_is_sent_back_and_the_object_stays_held():
-    # a crouched floor grasp sends the trunk back to its stance as its last step and ends
-    # (the carry posture move follows while the trunk rises): 1 s a grasp not waited
-    name = "rubiks_cube"
-    o = CAT.objects[name]
-    h = SimHarness([PlacedObject(name, (0.36, 0.03, o.size[2] / 2 + 0.001), yaw=0.4)])
-    h.settle(0.3)
-    z0 = h.object_pos(name)[2]
+def _body_requests(h: SimHarness) -> list[tuple[float, BodyPoseRequest]]:
+    """From now on, every body pose request the harness gets, with its sim time."""
     requests: list[tuple[float, BodyPoseRequest]] = []
     request_body = h.request_body
 
@@ -123,6 +117,18 @@ def test_a_grasp_ends_once_the_trunk_is_sent_back_and_the_object_stays_held():
         request_body(req)
 
     h.request_body = record  # type: ignore[method-assign]
+    return requests
+
+
+def test_a_grasp_ends_once_the_trunk_is_sent_back_and_the_object_stays_held():
+    # a crouched floor grasp sends the trunk back to its stance as its last step and ends
+    # (the carry posture move follows while the trunk rises): 1 s a grasp not waited
+    name = "rubiks_cube"
+    o = CAT.objects[name]
+    h = SimHarness([PlacedObject(name, (0.36, 0.03, o.size[2] / 2 + 0.001), yaw=0.4)])
+    h.settle(0.3)
+    z0 = h.object_pos(name)[2]
+    requests = _body_requests(h)
     g = _grasp(h, name, 0.0, "vertical")
     assert g.status is Status.SUCCEEDED, g.reason
     assert requests[0][1].z_offset < -0.01  # (it crouched)
@@ -216,14 +222,7 @@ def test_a_spoon_held_at_its_bowl_is_placed_by_its_middle():
 @pytest.mark.parametrize(("name", "surface", "place", "cx", "yaw"), PLACES)
 def test_place_into_region(name, surface, place, cx, yaw):
     h, g, plan = _grasped_for_place(name, surface, place, cx, yaw)
-    requests: list[tuple[float, BodyPoseRequest]] = []
-    request_body = h.request_body
-
-    def record(req: BodyPoseRequest) -> None:
-        requests.append((float(h.data.time), req))
-        request_body(req)
-
-    h.request_body = record  # type: ignore[method-assign]
+    requests = _body_requests(h)
     p = h.run(PlacePrimitive(GEOM, CFG, plan, monitor=g.monitor, body=g.body), KP, KD, timeout=40.0)
     assert p.status is Status.SUCCEEDED, p.reason
     # the trunk's way back to its stance is the place's last request, not waited for
