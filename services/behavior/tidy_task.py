@@ -388,8 +388,10 @@ class TaskConfig:
     side_probe_back: float = 0.50  # m farther back for the front camera (below a table top)
     # m farther back for a tall object on the floor (taller than ``tall``), still in the
     # grasp's reach (``grasp_ahead``): a standing cracker box shows a 16 cm face, 8 cm
-    # nearer the front feet than its middle, and an approach knocked one over onto its
-    # 16 x 21 cm face, which nothing grasps (paper-1, 2026-12-06, twice)
+    # nearer the front feet than its middle. Paper-1's (2026-12-06, twice) fell onto its
+    # 16 x 21 cm face, which nothing grasps, between a sighting standing and its probe:
+    # by its approach, or as the robot took up the Lego 42 cm from it (the logs do not
+    # tell; with this margin it fell again, so the Lego's is the likelier)
     tall_floor_back: float = 0.03
     step_back: float = 0.08  # m stepped back when the arm is too close
     step_closer: float = 0.05  # m stepped in when it is too far
