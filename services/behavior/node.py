@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import math
 import threading
+from concurrent.futures import Future, ThreadPoolExecutor
 import time
 from collections.abc import Callable, Collection, Sequence
 from pathlib import Path
@@ -265,6 +266,10 @@ class BusRobot:
         self.watch: ServiceWatch = node.watch
         # robot time before which perception's tracks are not trusted (forget_objects)
         self.objects_since = -math.inf
+        # a posture move sent without waiting (move_to_posture(wait=False)) and its goal
+        self._arm_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="posture")
+        self._arm_moving: tuple[Future[tuple[Outcome, m.Message | None]], m.PostureGoal] | None
+        self._arm_moving = None
 
     # ------------------------------------------------------------------ state
     def now(self) -> float:
@@ -470,12 +475,34 @@ class BusRobot:
         )
         return self._act("approach", goal)[0]
 
-    def move_to_posture(self, posture: str) -> Outcome:
-        return self._act("move_to_posture", m.PostureGoal(stamp=self.now(), posture=posture))[0]
+    def _arm_settled(self) -> Outcome:
+        """Wait for a posture move sent without waiting; one that failed is sent again,
+        blocking (what the request after it needs is the arm at that posture)."""
+        moving, self._arm_moving = self._arm_moving, None
+        if moving is None:
+            return Outcome(True)
+        future, goal = moving
+        out = future.result()[0]
+        if out.ok or out.interrupted or self.cancelled():
+            return out
+        again = m.PostureGoal(stamp=self.now(), posture=goal.posture)
+        return self._act("move_to_posture", again)[0]
+
+    def move_to_posture(self, posture: str, wait: bool = True) -> Outcome:
+        out = self._arm_settled()
+        if not out.ok:
+            return out
+        goal = m.PostureGoal(stamp=self.now(), posture=posture)
+        if wait:
+            return self._act("move_to_posture", goal)[0]
+        self._arm_moving = (self._arm_pool.submit(self._act, "move_to_posture", goal), goal)
+        return Outcome(True)
 
     def estimate_grasp(
         self, label: str, camera: str, track_id: int = -1
     ) -> tuple[Outcome, GraspPlan | None]:
+        if not (settled := self._arm_settled()).ok:
+            return settled, None
         req = m.GraspRequest(stamp=self.now(), track_id=track_id, label=label, camera=camera)
         out, res = self._act("estimate_grasp", req)
         if not out.ok or not isinstance(res, m.GraspGoal):
@@ -498,6 +525,8 @@ class BusRobot:
         )
 
     def grasp(self, plan: GraspPlan) -> Outcome:
+        if not (settled := self._arm_settled()).ok:
+            return settled
         base = self._base()
         position, yaw = carried_over(plan.position, plan.yaw, plan.seen_from, base)
         center = []
@@ -518,6 +547,8 @@ class BusRobot:
         return self._act("grasp", goal)[0]
 
     def place(self, position: Point3, yaw: float | None = None) -> Outcome:
+        if not (settled := self._arm_settled()).ok:
+            return settled
         goal = m.PlaceGoal(
             stamp=self.now(),
             position=list(self._to_base(position)),
@@ -527,6 +558,8 @@ class BusRobot:
         return self._act("place", goal)[0]
 
     def locate_handle(self, hint: Point3, distance: float) -> tuple[Outcome, HandlePlan | None]:
+        if not (settled := self._arm_settled()).ok:
+            return settled, None
         req = m.HandleRequest(
             stamp=self.now(), position=list(self._to_base(hint)), distance=float(distance)
         )
@@ -538,6 +571,8 @@ class BusRobot:
         )
 
     def open_drawer(self, handle: HandlePlan) -> Outcome:
+        if not (settled := self._arm_settled()).ok:
+            return settled
         goal = m.DrawerGoal(
             stamp=self.now(),
             handle_position=list(handle.position),

@@ -76,7 +76,8 @@ class HandlePlan:
 
 
 class RobotApi(Protocol):
-    """What the task asks of the robot. Every request blocks until it ends."""
+    """What the task asks of the robot. Every request blocks until it ends, but a posture
+    move that is asked not to wait (:meth:`move_to_posture`)."""
 
     def now(self) -> float:
         """Robot time (s)."""
@@ -154,8 +155,11 @@ class RobotApi(Protocol):
         (a table's leg; ``ApproachGoal.turn_free``)."""
         ...
 
-    def move_to_posture(self, posture: str) -> Outcome:
-        """Move the arm to a named posture."""
+    def move_to_posture(self, posture: str, wait: bool = True) -> Outcome:
+        """Move the arm to a named posture. ``wait=False``: send the move and return at
+        once (ok) while the arm moves, so a walk can start meanwhile; the next arm or
+        camera request (a posture, an estimate, a grasp, a place, a handle, a drawer) waits
+        for it to end first, and sends it once more, blocking, if it failed."""
         ...
 
     def estimate_grasp(

@@ -592,9 +592,9 @@ class _GuardedRobot:
         self._before()
         return self._after(self._r.approach(target, standoff, heading, loose, turn_free))
 
-    def move_to_posture(self, posture: str) -> Outcome:
+    def move_to_posture(self, posture: str, wait: bool = True) -> Outcome:
         self._before()
-        return self._after(self._r.move_to_posture(posture))
+        return self._after(self._r.move_to_posture(posture, wait))
 
     def estimate_grasp(
         self, label: str, camera: str, track_id: int = -1
@@ -899,10 +899,12 @@ class TidyTask:
             )
 
     # ------------------------------------------------------------------ helpers
-    def _posture(self, name: str) -> Outcome:
+    def _posture(self, name: str, wait: bool = True) -> Outcome:
+        """Move the arm to posture ``name``; ``wait=False`` lets a walk start while it
+        moves (the next arm or camera request waits for it: RobotApi.move_to_posture)."""
         if name == self.posture:
             return Outcome(True)
-        out = self.robot.move_to_posture(name)
+        out = self.robot.move_to_posture(name, wait)
         self.posture = name if out.ok else ""
         return out
 
@@ -1852,7 +1854,8 @@ class TidyTask:
         walked = _dist(self._pose(), rec.position) > self.cfg.direct_approach_max
         walked = walked or rec.end_walk
         if walked:
-            self._posture(self.cfg.walk_posture)
+            # the arm folds while the robot walks off (1.5 s after a place, every object)
+            self._posture(self.cfg.walk_posture, wait=False)
             out = self._walk_near(rec, standoff=probe.standoff)
             if not out.ok and _bad_goal(out.reason):
                 # every walk goal by it is in an obstacle now: what makes it so may be gone
@@ -1870,6 +1873,11 @@ class TidyTask:
         # to keep the trunk clear of a leg (its map holds them): once, then kept
         turn_free = table is not None and rec.table_heading is None
         aim = self._square_target(rec, rec.position)
+        if not probe.horizontal:
+            # the arm goes to the probing posture as the robot steps in (1-1.3 s each): it
+            # stays above the object, and the approach steers by the track, not the camera.
+            # A side probe's posture may lift the nose, which the approach would walk with.
+            self._posture(probe.posture, wait=False)
         out = self.robot.approach(
             (aim[0], aim[1]), probe.standoff, self._facing(rec, probe.standoff), turn_free=turn_free
         )
@@ -2307,10 +2315,11 @@ class TidyTask:
         rec = self.target
         assert rec is not None
         dep, place = self._deposit()
-        self._posture(dep.carry_posture)
+        # the arm lifts the object to carry it as the walk sets off (1.5 s each object)
+        self._posture(dep.carry_posture, wait=False)
         if self.robot.holding() is False:
-            # it slipped out as the arm moved to carry it (seed-107: a cup, then a walk
-            # to the green box with empty fingers): it lies here, look here
+            # it slipped out as the grasp ended (seed-107: a cup, then a walk to the green
+            # box with empty fingers): it lies here, look here
             self._dropped("dropped while moving to carry it", Step.CARRY, here_picked=True)
             return Step.GO_TO_VIEWPOINT
         self._say(f"{rec.name} to {place.name}")

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
@@ -147,6 +148,10 @@ class FakeHouse:
         self.t = 0.0
         self.at = START
         self.posture = "stow"
+        # a posture move sent without waiting ends at this time; (the request, the posture)
+        # of every walk or approach that started while it moved
+        self.arm_until = 0.0
+        self.arm_moving_during: list[tuple[str, str]] = []
         self.memory: dict[int, SeenObject] = {}
         self.held: Thing | None = None
         self.drawers: dict[str, float] = {}
@@ -432,6 +437,7 @@ class FakeHouse:
 
     # -------------------------------------------------------------- walking
     def navigate_to(self, place: str = "", pose: tuple[float, float, float] | None = None):
+        self._walks("navigate_to")
         self.calls.append(("navigate_to", place or pose))
         if (refused := self._request("navigate_to")) is not None:
             return refused
@@ -479,6 +485,7 @@ class FakeHouse:
         return Outcome(True)
 
     def approach(self, target, standoff, heading=None, loose=False, turn_free=False):
+        self._walks("approach")
         self.calls.append(("approach", (tuple(target), standoff, heading)))
         self.turn_free_approaches += bool(turn_free)
         self.loose_approaches += bool(loose)
@@ -542,11 +549,23 @@ class FakeHouse:
             return Outcome(False, "blocked: the approach did not settle in time")
         return Outcome(True)
 
-    def move_to_posture(self, posture: str) -> Outcome:
+    def _arm_settled(self) -> None:
+        """An arm or camera request waits for a posture move sent without waiting."""
+        self.t = max(self.t, self.arm_until)
+
+    def _walks(self, request: str) -> None:
+        if self.arm_until > self.t:
+            self.arm_moving_during.append((request, self.posture))
+
+    def move_to_posture(self, posture: str, wait: bool = True) -> Outcome:
+        self._arm_settled()
         self.calls.append(("move_to_posture", posture))
         if (refused := self._request("move_to_posture")) is not None:
             return refused
-        self.t += 1.0
+        if wait:
+            self.t += 1.0
+        else:
+            self.arm_until = self.t + 1.0
         self.posture = posture
         if self.held is not None and self.posture_drops.get(self.held.label, 0) > 0:
             self.posture_drops[self.held.label] -= 1
@@ -558,6 +577,7 @@ class FakeHouse:
 
     # -------------------------------------------------------------- hands
     def estimate_grasp(self, label, camera, track_id=-1):
+        self._arm_settled()
         self.calls.append(("estimate_grasp", (label, track_id)))
         self.probed_with.append((label, camera))
         if (refused := self._request("estimate_grasp")) is not None:
@@ -622,6 +642,7 @@ class FakeHouse:
         return Outcome(True), plan
 
     def grasp(self, plan: GraspPlan) -> Outcome:
+        self._arm_settled()
         t = next(
             x
             for x in self.things.values()
@@ -656,6 +677,7 @@ class FakeHouse:
         return Outcome(True)
 
     def place(self, position, yaw=None) -> Outcome:
+        self._arm_settled()
         self.calls.append(("place", (tuple(position), yaw)))
         if (refused := self._request("place")) is not None:
             return refused
@@ -715,6 +737,7 @@ class FakeHouse:
         return Outcome(True)
 
     def locate_handle(self, hint, distance):
+        self._arm_settled()
         self.calls.append(("locate_handle", tuple(hint)))
         if (refused := self._request("locate_handle")) is not None:
             return refused, None
@@ -722,6 +745,7 @@ class FakeHouse:
         return Outcome(True), HandlePlan((0.5, 0.0, 0.1), (-1.0, 0.0, 0.0), distance)
 
     def open_drawer(self, handle: HandlePlan) -> Outcome:
+        self._arm_settled()
         drawer = min(
             (p for p in PLACES.values() if p.kind == "drawer"),
             key=lambda p: math.dist(p.stand[:2], self.at[:2]),
@@ -882,6 +906,24 @@ def test_every_object_goes_to_its_categorys_place(tidy_run) -> None:
         p.name for p in PLACES.values() if p.kind.startswith("search_")
     )
     assert report.zones_total == len(report.zones_searched)
+
+
+def test_the_arm_moves_to_its_next_posture_while_the_robot_walks(tidy_run) -> None:
+    """The carry posture as the walk to the box sets off, the folded one as the walk to the
+    next object does, the probing one as the approach steps in; never a side probe's,
+    which may lift the nose, and never one the next arm request does not wait for (the
+    house's arm requests wait, as the node's do)."""
+    house, report, _ = tidy_run
+    during = set(house.arm_moving_during)
+    assert {
+        ("navigate_to", "carry"),
+        ("navigate_to", "stow"),
+        ("approach", "probe_floor"),
+        ("approach", "probe_table"),
+    } <= during
+    assert "probe_horizontal" in _calls(house, "move_to_posture")
+    assert not {p for _, p in during} & {"probe_horizontal", "probe_tall"}
+    assert all(r.placed for r in report.objects)
 
 
 def test_the_screwdriver_goes_into_the_drawer_across(tidy_run) -> None:
@@ -2573,6 +2615,53 @@ def test_a_request_to_a_service_that_dies_ends_at_once_not_after_the_action_time
                      BasePose(2.0, 1.0, 0.27, math.pi / 2), (-0.4, 2.0, 0.07))  # fmt: skip
     assert robot.grasp(plan).ok and grasp.cancelled == 0
     assert robot.outages()["perception"] == 1
+
+
+class _Moving(_Client):
+    """A posture client whose goals end when ``done`` is set: the first ``fails`` of them
+    failed, the rest succeeded."""
+
+    def __init__(self, fails: int = 0) -> None:
+        super().__init__()
+        self.done, self.fails = threading.Event(), fails
+
+    def send_goal(self, goal: m.Message, timeout: float = 2.0) -> _Handle:
+        self.sent.append(goal)
+        client, failed = self, len(self.sent) <= self.fails
+
+        class Moving(_Handle):
+            def result(self, timeout: float | None = None, poll_s: float = 2.0):
+                if not client.done.wait(0.05 if timeout is None else min(timeout, 0.05)):
+                    return None
+                status, why = ("failed", "trajectory") if failed else ("succeeded", "")
+                return m.ActionResult(stamp=0.0, goal_id="g", status=status, reason=why)
+
+        return Moving(True, "", None)
+
+
+def test_a_posture_sent_without_waiting_lets_a_walk_start_and_holds_the_next_arm_request() -> None:
+    robot, node = _bus_robot()
+    arm = _Moving()
+    node.clients["move_to_posture"] = arm
+    assert robot.move_to_posture("carry", wait=False).ok  # back while the arm moves
+    assert robot.navigate_to(pose=(1.0, 2.0, 0.0)).ok  # the walk does not wait for it
+    placed: list[Outcome] = []
+    place = threading.Thread(target=lambda: placed.append(robot.place((-1.0, 2.0, 0.27))))
+    place.start()
+    time.sleep(0.3)
+    assert placed == [] and node.clients["place"].sent == []  # the place waits for the arm
+    arm.done.set()
+    place.join(5.0)
+    assert placed[0].ok and len(node.clients["place"].sent) == 1
+    assert [g.posture for g in arm.sent] == ["carry"]
+    # a move that failed meanwhile is sent once more before the estimate, which goes on
+    arm = _Moving(fails=1)
+    arm.done.set()
+    node.clients["move_to_posture"] = arm
+    assert robot.move_to_posture("probe_floor", wait=False).ok
+    robot.estimate_grasp("mug", "gripper_camera")
+    assert [g.posture for g in arm.sent] == ["probe_floor", "probe_floor"]
+    assert len(node.clients["estimate_grasp"].sent) == 1
 
 
 def test_nothing_is_sent_to_a_service_that_is_away() -> None:
