@@ -1555,10 +1555,12 @@ class TidyTask:
         standoff = dc.long_pull_standoff if distance > dc.max_pull + 1e-9 else dc.handle_standoff
         if _dist(self._pose(), handle) > standoff + 0.5:
             self._say(f"{name}: walking to it")
-            self._posture(self.cfg.walk_posture)
+            self._posture(self.cfg.walk_posture, wait=False)
             out = self._walk_to_stand(self.places[name])
             if not out.ok:
                 return f"walk: {out.reason}"
+        # the arm lifts out of the front camera's view as the robot squares up (1.3 s each)
+        self._posture(dc.probe_posture, wait=False)
         out = self.robot.approach((handle[0], handle[1]), standoff, heading)
         if not out.ok and UNSETTLED not in out.reason:  # (the handle is located from here)
             return f"square up: {out.reason}"
