@@ -106,13 +106,17 @@ def _line(a: ArmTarget, b: ArmTarget, n: int) -> list[ArmTarget]:
     ]
 
 
-def _wrist_roll(geom: ArmGeometry, roll: float) -> float:
-    """Roll inside the wrist range, using the gripper's half-turn symmetry if needed."""
+def _wrist_roll(geom: ArmGeometry, roll: float, near: float | None = None) -> float:
+    """Roll inside the wrist range, using the gripper's half-turn symmetry if needed; with
+    ``near``, the one of the two fingers' ways nearest that roll (the shorter turn)."""
     lo, hi = geom.q_min[3], geom.q_max[3]
-    for cand in (roll, roll + math.pi, roll - math.pi, roll + 2 * math.pi, roll - 2 * math.pi):
-        if lo <= cand <= hi:
-            return cand
-    raise GraspRejected("roll_out_of_range", f"roll {roll:.3f} outside [{lo:.3f}, {hi:.3f}]")
+    cands = (roll, roll + math.pi, roll - math.pi, roll + 2 * math.pi, roll - 2 * math.pi)
+    inside = [c for c in cands if lo <= c <= hi]
+    if not inside:
+        raise GraspRejected("roll_out_of_range", f"roll {roll:.3f} outside [{lo:.3f}, {hi:.3f}]")
+    if near is None:
+        return inside[0]
+    return min(inside, key=lambda c: abs(c - near) - 1e-9 * (c == roll))
 
 
 def plan_grasp(

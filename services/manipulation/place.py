@@ -101,7 +101,10 @@ def plan_place(
     if yaw is not None:
         if not math.isfinite(yaw):
             raise GraspRejected("invalid_goal", "yaw must be finite")
-        roll = _wrist_roll(geom, -yaw)
+        # the fingers' line is what matters, not which finger is which: the half-turn
+        # symmetric roll nearest the carry's (a long object carried across, placed across,
+        # turned the wrist a half turn, 4-5 s, paper-1 2026-12-07's spoon)
+        roll = _wrist_roll(geom, -yaw, near=roll)
     why = far = ""
     # keep the grasp's pitch if possible: stand up taller first (body z, up to max_rise),
     # then lean the tool forward for far or high regions, at most 0.6 rad and as far as

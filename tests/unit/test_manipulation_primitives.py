@@ -145,6 +145,28 @@ def test_a_place_puts_the_held_objects_middle_where_it_is_asked():
     assert abs(cut.body.y_offset) == pytest.approx(CFG.grasp.max_lateral_shift)
 
 
+@pytest.mark.parametrize("carried", [math.pi / 2, -math.pi / 2])
+def test_a_place_turns_the_wrist_the_shorter_way_to_the_fingers_line(carried):
+    """Carried across (the wrist turned a quarter, either way) and placed across, the
+    fingers already lie as asked: no turn (not a half turn, 4-5 s); placed along, a
+    quarter turn at most. The held middle is placed where asked either way."""
+    q = resolve_postures(GEOM, CFG)["carry"].copy()
+    q[3] = carried
+    grasp = ArmTarget(0.35, -0.25, math.pi / 2, 0.0)
+    held = held_offset(GEOM, grasp, np.array([0.0, 0.04, -0.005]))
+    point = np.array([0.40, 0.01, 0.125])
+    across = plan_place(GEOM, CFG, point, q, 0.03, yaw=math.pi / 2, held=held)
+    assert across.release.roll == pytest.approx(carried)
+    along = plan_place(GEOM, CFG, point, q, 0.03, yaw=0.0, held=held)
+    assert abs(along.release.roll - carried) == pytest.approx(math.pi / 2)
+    for plan in (across, along):
+        r = plan.release
+        mid = rot_y(r.pitch) @ rot_x(r.roll) @ held
+        x = GEOM.arm_base_pos[0] + r.x + mid[0]
+        y = plan.body.y_offset + mid[1]
+        assert (x, y) == pytest.approx((point[0], point[1]), abs=1e-6)
+
+
 def test_body_requests_stay_within_locomotion_limits():
     """Manipulation never asks for a body pose that locomotion rejects (z_raise 3 cm: a 6 cm
     rise was refused mid-place and the open fingers stayed around the can)."""
