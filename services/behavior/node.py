@@ -475,6 +475,9 @@ class BusRobot:
         )
         return self._act("approach", goal)[0]
 
+    def wait_for_arm(self) -> Outcome:
+        return self._arm_settled()
+
     def _arm_settled(self) -> Outcome:
         """Wait for a posture move sent without waiting; one that failed is sent again,
         blocking (what the request after it needs is the arm at that posture)."""

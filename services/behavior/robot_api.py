@@ -162,6 +162,11 @@ class RobotApi(Protocol):
         for it to end first, and sends it once more, blocking, if it failed."""
         ...
 
+    def wait_for_arm(self) -> Outcome:
+        """Wait for a posture move sent without waiting to end (ok at once when none): the
+        cameras look from the posture itself from then on."""
+        ...
+
     def estimate_grasp(
         self, label: str, camera: str, track_id: int = -1
     ) -> tuple[Outcome, GraspPlan | None]:

@@ -596,6 +596,10 @@ class _GuardedRobot:
         self._before()
         return self._after(self._r.move_to_posture(posture, wait))
 
+    def wait_for_arm(self) -> Outcome:
+        self._before()
+        return self._after(self._r.wait_for_arm())
+
     def estimate_grasp(
         self, label: str, camera: str, track_id: int = -1
     ) -> tuple[Outcome, GraspPlan | None]:
@@ -743,6 +747,7 @@ class TidyTask:
         self.reopened: dict[str, int] = {}  # drawer -> rounds of opening it again
         self.last_look: int | None = None  # the view of the zone in progress looked from last
         self.posture = ""
+        self.arm_moving = False  # ``posture`` was sent without waiting (_posture)
         # target state
         self.target: ObjectRecord | None = None
         self.probe: _Probe | None = None
@@ -901,11 +906,19 @@ class TidyTask:
     # ------------------------------------------------------------------ helpers
     def _posture(self, name: str, wait: bool = True) -> Outcome:
         """Move the arm to posture ``name``; ``wait=False`` lets a walk start while it
-        moves (the next arm or camera request waits for it: RobotApi.move_to_posture)."""
+        moves (the next arm or camera request waits for it: RobotApi.move_to_posture).
+        Asked again with ``wait``, a posture still moving is waited for."""
         if name == self.posture:
-            return Outcome(True)
+            if not wait or not self.arm_moving:
+                return Outcome(True)
+            self.arm_moving = False
+            out = self.robot.wait_for_arm()
+            if not out.ok:
+                self.posture = ""
+            return out
         out = self.robot.move_to_posture(name, wait)
         self.posture = name if out.ok else ""
+        self.arm_moving = out.ok and not wait
         return out
 
     def _fail(self, step: Step, reason: str, rec: ObjectRecord | None = None) -> bool:
@@ -1329,7 +1342,7 @@ class TidyTask:
                 continue  # gone again meanwhile: the next round, with the new one
             todo = set()
             # the arm: where a cut motion left it, or unknown to a new manipulation
-            self.posture = ""
+            self.posture, self.arm_moving = "", False
             if step is not Step.OPEN_DRAWERS:  # (the fingers may be on a handle there)
                 self._posture_raw(self._safe_posture(step))
         if self._pending():
@@ -1615,8 +1628,9 @@ class TidyTask:
         here = self.robot.pose()
         if here is not None and _dist(here, vp) < 0.05 and abs(wrap(here[2] - vp[2])) < 0.05:
             return Step.LOOK
-        # look while walking: the search posture shows the floor (or tables) on the way
-        self._posture(self._zone_search().posture)
+        # look while walking: the search posture shows the floor (or tables) on the way;
+        # the arm gets there as the walk sets off, and the look waits for it (_look)
+        self._posture(self._zone_search().posture, wait=False)
         out = self.robot.navigate_to(pose=vp)
         if not out.ok:  # a viewpoint in an obstacle or unreachable: the next one
             self.view_index += 1

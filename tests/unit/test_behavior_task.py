@@ -152,6 +152,8 @@ class FakeHouse:
         # of every walk or approach that started while it moved
         self.arm_until = 0.0
         self.arm_moving_during: list[tuple[str, str]] = []
+        self.looked_still: list[bool] = []  # per wait_for_arm: the arm had arrived already
+        self.dwelt_while_moving = 0  # waits (a look's dwell) begun before the arm arrived
         self.memory: dict[int, SeenObject] = {}
         self.held: Thing | None = None
         self.drawers: dict[str, float] = {}
@@ -395,6 +397,7 @@ class FakeHouse:
 
     def wait(self, seconds: float) -> None:
         self._strike("wait")
+        self.dwelt_while_moving += self.arm_until > self.t
         self.t += seconds
         self._look()
         if self.posture in ("floor_search", "table_search"):
@@ -556,6 +559,11 @@ class FakeHouse:
     def _walks(self, request: str) -> None:
         if self.arm_until > self.t:
             self.arm_moving_during.append((request, self.posture))
+
+    def wait_for_arm(self) -> Outcome:
+        self.looked_still.append(self.arm_until <= self.t)
+        self._arm_settled()
+        return Outcome(True)
 
     def move_to_posture(self, posture: str, wait: bool = True) -> Outcome:
         self._arm_settled()
@@ -921,7 +929,11 @@ def test_the_arm_moves_to_its_next_posture_while_the_robot_walks(tidy_run) -> No
         ("approach", "probe_floor"),
         ("approach", "probe_table"),
         ("approach", CFG.drawers.probe_posture),  # squaring up to a drawer's handle
+        ("navigate_to", "floor_search"),  # to a viewpoint, looking on the way
+        ("navigate_to", "table_search"),
     } <= during
+    # but a look from a viewpoint looks from the posture itself: it waits for the arm
+    assert house.dwelt_while_moving == 0 and house.looked_still
     assert all(r.placed for r in report.objects)
     # a tall box on a table is probed from the side: its posture, which lifts the nose,
     # is sent once the robot stands
@@ -2659,6 +2671,18 @@ def test_a_posture_sent_without_waiting_lets_a_walk_start_and_holds_the_next_arm
     place.join(5.0)
     assert placed[0].ok and len(node.clients["place"].sent) == 1
     assert [g.posture for g in arm.sent] == ["carry"]
+    # a look waits for the arm as such
+    arm = _Moving()
+    node.clients["move_to_posture"] = arm
+    assert robot.move_to_posture("floor_search", wait=False).ok
+    waited: list[Outcome] = []
+    look = threading.Thread(target=lambda: waited.append(robot.wait_for_arm()))
+    look.start()
+    time.sleep(0.2)
+    assert waited == []
+    arm.done.set()
+    look.join(5.0)
+    assert waited[0].ok and robot.wait_for_arm().ok  # (nothing moving: at once)
     # a move that failed meanwhile is sent once more before the estimate, which goes on
     arm = _Moving(fails=1)
     arm.done.set()
