@@ -1756,6 +1756,23 @@ class TidyTask:
         tables = self._tables()
         return min(tables, key=lambda p: p.outside_by(rec.position)) if tables else None
 
+    def _across_table(self, rec: ObjectRecord) -> bool:
+        """Whether a table object's stance lies across its table from here: the robot
+        stands beside or beyond the table's near edge, seen along the stance's heading.
+        A straight approach would lead under the table (paper-2, 2026-12-07: from the
+        black box, south of the kitchen table, to a can 0.5 m in from its north edge, to be
+        taken from the north: the trunk met a leg under the table, stood where the map has
+        the table, and every walk after was "start in an obstacle": six objects lost)."""
+        table = self._table_of(rec)
+        heading = self._facing(rec)
+        if table is None or heading is None:
+            return False
+        here = self._pose()
+        c, s = math.cos(heading), math.sin(heading)
+        depth = 0.5 * (abs(c) * table.size[0] + abs(s) * table.size[1])
+        ahead = (here[0] - table.target[0]) * c + (here[1] - table.target[1]) * s
+        return ahead > -depth
+
     def _facing(self, rec: ObjectRecord, standoff: float | None = None) -> float | None:
         """The heading to stand at for ``rec``: square to its table from the table's stand
         side (a stance turned toward an object near the table's end puts a corner of the
@@ -1868,7 +1885,7 @@ class TidyTask:
         self._refresh_target()
         self.probe = probe = self._probe_for(rec)
         walked = _dist(self._pose(), rec.position) > self.cfg.direct_approach_max
-        walked = walked or rec.end_walk
+        walked = walked or rec.end_walk or self._across_table(rec)
         if walked:
             # the arm folds while the robot walks off (1.5 s after a place, every object)
             self._posture(self.cfg.walk_posture, wait=False)

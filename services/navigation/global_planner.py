@@ -26,7 +26,18 @@ from quadmanip.services.navigation.costmap import INFLATED_MAX, INSCRIBED, LETHA
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
-__all__ = ["PlanResult", "PlannerConfig", "plan_path", "path_headings", "resample_path"]
+__all__ = [
+    "START_IN_OBSTACLE",
+    "PlanResult",
+    "PlannerConfig",
+    "plan_path",
+    "path_headings",
+    "resample_path",
+]
+
+#: The reason of a plan whose start lies in an obstacle with no free cell in a straight
+#: step (the walk may still step out: Navigator.start).
+START_IN_OBSTACLE = "start in an obstacle"
 
 
 @dataclass(frozen=True)
@@ -265,7 +276,7 @@ def plan_path(
     if not passable[sr, sc]:
         esc = _escape(costmap, start, cfg.escape_radius, passable)
         if esc is None:
-            return fail("start in an obstacle")
+            return fail(START_IN_OBSTACLE)
         s_node = esc
     dist, pred = dijkstra(graph, directed=True, indices=s_node, return_predecessors=True)
     if not np.isfinite(dist[g_node]):

@@ -832,6 +832,31 @@ def _approach_can(*others: Thing) -> tuple[FakeHouse, str]:
     return house, task._approach().value
 
 
+def test_a_table_object_across_its_table_is_walked_round_to_not_approached_under_it() -> None:
+    # paper-2, 2026-12-07: after a place at the black box, south of the kitchen table, the
+    # soup can 1.3 m away on the table's north side (its stand side) was approached straight
+    # through the table: the trunk met a leg, and the robot stood in the table on the map
+    can = Thing("tomato_soup_can", 1, (6.98, 2.11, 0.45), on_table=True)
+    house = FakeHouse([can])
+    house.at = (7.1, 0.85, math.pi / 2)
+    house.memory[can.track_id] = SeenObject(can.track_id, can.label, can.position)
+    task = _task(house)
+    task.target = ObjectRecord("tomato_soup_can", 1, "tray", can.position, t_found=0.0)
+    task._approach()
+    first = next(what for what, _ in house.calls if what in ("navigate_to", "approach"))
+    assert first == "navigate_to"
+    walk = _calls(house, "navigate_to")[0]  # to the table's stand side (north), facing it
+    assert walk[1] > 2.2 + 0.3 and walk[2] == pytest.approx(-math.pi / 2)
+    # from the stand side, 1.3 m off, the approach is straight
+    house = FakeHouse([can])
+    house.at = (7.1, 3.4, -math.pi / 2)
+    house.memory[can.track_id] = SeenObject(can.track_id, can.label, can.position)
+    task = _task(house)
+    task.target = ObjectRecord("tomato_soup_can", 1, "tray", can.position, t_found=0.0)
+    task._approach()
+    assert _calls(house, "navigate_to") == [] and _calls(house, "approach")
+
+
 def _home(label: str) -> str:
     """The places-file name where ``label`` belongs."""
     return CFG.deposits[CATALOGUE.place_of(label)].place
