@@ -476,9 +476,6 @@ class BusRobot:
         return self._act("approach", goal)[0]
 
     def wait_for_arm(self) -> Outcome:
-        return self._arm_settled()
-
-    def _arm_settled(self) -> Outcome:
         """Wait for a posture move sent without waiting; one that failed is sent again,
         blocking (what the request after it needs is the arm at that posture)."""
         moving, self._arm_moving = self._arm_moving, None
@@ -492,7 +489,7 @@ class BusRobot:
         return self._act("move_to_posture", again)[0]
 
     def move_to_posture(self, posture: str, wait: bool = True) -> Outcome:
-        out = self._arm_settled()
+        out = self.wait_for_arm()
         if not out.ok:
             return out
         goal = m.PostureGoal(stamp=self.now(), posture=posture)
@@ -504,7 +501,7 @@ class BusRobot:
     def estimate_grasp(
         self, label: str, camera: str, track_id: int = -1
     ) -> tuple[Outcome, GraspPlan | None]:
-        if not (settled := self._arm_settled()).ok:
+        if not (settled := self.wait_for_arm()).ok:
             return settled, None
         req = m.GraspRequest(stamp=self.now(), track_id=track_id, label=label, camera=camera)
         out, res = self._act("estimate_grasp", req)
@@ -528,7 +525,7 @@ class BusRobot:
         )
 
     def grasp(self, plan: GraspPlan) -> Outcome:
-        if not (settled := self._arm_settled()).ok:
+        if not (settled := self.wait_for_arm()).ok:
             return settled
         base = self._base()
         position, yaw = carried_over(plan.position, plan.yaw, plan.seen_from, base)
@@ -550,7 +547,7 @@ class BusRobot:
         return self._act("grasp", goal)[0]
 
     def place(self, position: Point3, yaw: float | None = None) -> Outcome:
-        if not (settled := self._arm_settled()).ok:
+        if not (settled := self.wait_for_arm()).ok:
             return settled
         goal = m.PlaceGoal(
             stamp=self.now(),
@@ -561,7 +558,7 @@ class BusRobot:
         return self._act("place", goal)[0]
 
     def locate_handle(self, hint: Point3, distance: float) -> tuple[Outcome, HandlePlan | None]:
-        if not (settled := self._arm_settled()).ok:
+        if not (settled := self.wait_for_arm()).ok:
             return settled, None
         req = m.HandleRequest(
             stamp=self.now(), position=list(self._to_base(hint)), distance=float(distance)
@@ -574,7 +571,7 @@ class BusRobot:
         )
 
     def open_drawer(self, handle: HandlePlan) -> Outcome:
-        if not (settled := self._arm_settled()).ok:
+        if not (settled := self.wait_for_arm()).ok:
             return settled
         goal = m.DrawerGoal(
             stamp=self.now(),
