@@ -439,15 +439,17 @@ class BusRobot:
             return Outcome(True), res.result
         return Outcome(False, res.reason or res.status), res.result
 
-    def navigate_to(self, place: str = "", pose: Pose2 | None = None) -> Outcome:
+    def navigate_to(
+        self, place: str = "", pose: Pose2 | None = None, lead_in: bool = False
+    ) -> Outcome:
         c = self.cfg
         goal = m.NavigateGoal(
             stamp=self.now(),
             place=place,
             pose=list(pose) if pose is not None else [0.0, 0.0, 0.0],
             frame="map",
-            tolerance_xy=c.nav_tolerance_xy,
-            tolerance_yaw=c.nav_tolerance_yaw,
+            tolerance_xy=c.lead_in_tolerance_xy if lead_in else c.nav_tolerance_xy,
+            tolerance_yaw=c.lead_in_tolerance_yaw if lead_in else c.nav_tolerance_yaw,
         )
         return self._act("navigate_to", goal)[0]
 

@@ -135,8 +135,12 @@ class RobotApi(Protocol):
         memory is gone, or the odom frame it was kept in was restarted)."""
         ...
 
-    def navigate_to(self, place: str = "", pose: Pose2 | None = None) -> Outcome:
-        """Walk to a named place of the places file, else to a map pose."""
+    def navigate_to(
+        self, place: str = "", pose: Pose2 | None = None, lead_in: bool = False
+    ) -> Outcome:
+        """Walk to a named place of the places file, else to a map pose. ``lead_in``: an
+        approach follows, so the walk may end loosely and still moving (the config's
+        lead-in tolerances)."""
         ...
 
     def approach(

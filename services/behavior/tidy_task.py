@@ -577,9 +577,11 @@ class _GuardedRobot:
         self._r.forget_objects()
 
     # guarded requests
-    def navigate_to(self, place: str = "", pose: Pose2 | None = None) -> Outcome:
+    def navigate_to(
+        self, place: str = "", pose: Pose2 | None = None, lead_in: bool = False
+    ) -> Outcome:
         self._before()
-        return self._after(self._r.navigate_to(place, pose))
+        return self._after(self._r.navigate_to(place, pose, lead_in))
 
     def approach(
         self,
@@ -985,7 +987,7 @@ class TidyTask:
         back = self.cfg.stage_back
         for b in (back, back / 2, 0.0):
             goal = (sx - b * math.cos(syaw), sy - b * math.sin(syaw), syaw)
-            out = self.robot.navigate_to(pose=goal)
+            out = self.robot.navigate_to(pose=goal, lead_in=True)
             if not out.ok and _dist(self._pose(), goal) < self.cfg.stage_accept:
                 return Outcome(True)
             if out.ok or not _bad_goal(out.reason):
@@ -1846,7 +1848,7 @@ class TidyTask:
                     rec.position[1] - back * math.sin(h),
                     h,
                 )
-                out = self.robot.navigate_to(pose=goal)
+                out = self.robot.navigate_to(pose=goal, lead_in=True)
                 if out.ok:
                     with self._lock:
                         rec.end_walk = False
@@ -1873,7 +1875,7 @@ class TidyTask:
                 )
                 if any(_in_box(o, goal, self.cfg.feet_box) for o in others):
                     continue  # it would stand on another object
-                out = self.robot.navigate_to(pose=goal)
+                out = self.robot.navigate_to(pose=goal, lead_in=True)
                 bad = _bad_goal(out.reason)
                 if out.ok or not bad:
                     return out

@@ -693,7 +693,12 @@ class NavigationNode(Service):
                 heading = self._free_heading(t, float(g.standoff), heading, odom, nose_in=True)
             job.target = approach_pose(t, float(g.standoff), heading)
             job.total = max(math.hypot(job.target[0] - odom[0], job.target[1] - odom[1]), 1e-3)
-            self.approacher.reset()
+            od = self.odom_cache.get()
+            self.approacher.reset(
+                None
+                if od is None
+                else (*od.linear_velocity[:2], od.angular_velocity[2])  # (base frame)
+            )
             scan = self.scan_cache.get()
             if scan is not None:
                 # (the newest odometry when the scan's is not known: the robot stands still

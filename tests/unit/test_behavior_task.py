@@ -158,6 +158,7 @@ class FakeHouse:
         self.held: Thing | None = None
         self.drawers: dict[str, float] = {}
         self.calls: list[tuple[str, object]] = []
+        self.lead_ins: list[bool] = []  # per navigate_to: whether an approach follows it
         self.cancel_after: float | None = None
         # restarts
         self.outage_plan = list(outages or [])
@@ -439,9 +440,12 @@ class FakeHouse:
         return self.held is not None
 
     # -------------------------------------------------------------- walking
-    def navigate_to(self, place: str = "", pose: tuple[float, float, float] | None = None):
+    def navigate_to(
+        self, place: str = "", pose: tuple[float, float, float] | None = None, lead_in=False
+    ):
         self._walks("navigate_to")
         self.calls.append(("navigate_to", place or pose))
+        self.lead_ins.append(lead_in)
         if (refused := self._request("navigate_to")) is not None:
             return refused
         for label, span in self.refuse_near_for.items():
@@ -966,6 +970,24 @@ def test_the_arm_moves_to_its_next_posture_while_the_robot_walks(tidy_run) -> No
     assert _record(report, "cracker_box").placed
     assert "probe_tall" in _calls(house, "move_to_posture")
     assert "probe_tall" not in {p for _, p in house.arm_moving_during}
+
+
+def test_a_walk_an_approach_follows_ends_as_a_lead_in_and_no_other_does(tidy_run) -> None:
+    """Walks to an object, to a place's or a drawer's stand: an approach steps in after
+    each, so they end loosely, still under way (``lead_in``); a walk to a viewpoint, which
+    the robot looks from, ends as a walk does."""
+    house, report, _ = tidy_run
+    assert all(r.placed for r in report.objects)
+    acts = [c for c in house.calls if c[0] != "move_to_posture"]
+    walks = [i for i, c in enumerate(acts) if c[0] == "navigate_to"]
+    assert len(walks) == len(house.lead_ins)
+    followed = {i: next((c[0] for c in acts[i + 1 :] if c[0] != "navigate_to"), "") for i in walks}
+    for i, lead_in in zip(walks, house.lead_ins, strict=True):
+        if lead_in:
+            assert followed[i] == "approach", acts[i]
+    assert sum(house.lead_ins) >= len(report.objects)  # at least to each one's place
+    # the viewpoints (an object seen from one may be approached straight from there)
+    assert not all(house.lead_ins)
 
 
 def test_the_screwdriver_goes_into_the_drawer_across(tidy_run) -> None:

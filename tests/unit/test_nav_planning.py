@@ -5,6 +5,7 @@ kinematic model of a legged base (first-order velocity lag, noise, deadband)."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -498,6 +499,81 @@ def test_the_last_centimetres_are_nudged_standing_not_stepped():
     assert worst[0.04][0] <= 0.3 * tol_xy, worst
     assert worst[0.0][0] > 0.5 * tol_xy, worst  # the kicks are what the nudges remove
     assert worst[0.04][1] < worst[0.0][1], worst
+
+
+def _approach_run(cfg: ApproachConfig, goal: tuple[float, float, float], seed: int):
+    """One approach of a StoppingBase from the origin: (time, overshoot past the goal
+    along the start-goal line, final error)."""
+    base = StoppingBase((0.0, 0.0, 0.0), deadband=0.02, deadband_wz=0.05, seed=seed)
+    ctl = ApproachController(cfg)
+    line = np.array(goal[:2]) / math.hypot(goal[0], goal[1])
+    t, done, past = 0.0, False, -math.inf
+    while t < 30.0 and not done:
+        vx, vy, wz, done = ctl.command(base.pose, goal, 0.015, 0.03, standing=base.standing)
+        if not done:
+            base.step((vx, vy, wz))
+        past = max(past, float(np.dot(np.array(base.pose[:2]) - goal[:2], line)))
+        t += 0.05
+    assert done, (goal, seed)
+    return t, past, math.dist(base.pose[:2], goal[:2])
+
+
+def test_the_approach_gain_is_what_the_lag_allows_not_less():
+    """With the lag-predicted error the loop's poles are -K and -1/lag (module doc): at
+    K = 2 the tail decays at 2/s where the 0.25 s lag allows up to 4/s. The default (3)
+    is faster than 2 on the task's probing tolerance and still stops short of the goal,
+    not past it. (Full stack, ``bench navigation --parts nav --approaches 16``, the same
+    targets: median 4.71 s at K = 2, 4.00 s at 3, 4.49 s at 4; true errors alike.)"""
+    rng = np.random.default_rng(17)
+    goals = [
+        (float(rng.uniform(0.4, 0.9)), float(rng.uniform(-0.3, 0.3)), float(rng.uniform(-0.4, 0.4)))
+        for _ in range(10)
+    ]
+    slow = replace(ApproachConfig(), gain_xy=2.0, gain_yaw=2.0)
+    runs = {
+        name: [_approach_run(cfg, g, k) for k, g in enumerate(goals)]
+        for name, cfg in (("default", ApproachConfig()), ("K2", slow))
+    }
+    t_default = float(np.median([r[0] for r in runs["default"]]))
+    t_slow = float(np.median([r[0] for r in runs["K2"]]))
+    assert ApproachConfig().gain_xy * ApproachConfig().lag < 1.0  # below the double pole
+    assert t_default <= 0.95 * t_slow, (t_default, t_slow)
+    assert max(r[1] for r in runs["default"]) <= 0.015  # not past the goal's tolerance
+    assert max(r[2] for r in runs["default"]) <= 0.015
+
+
+def test_an_approach_taking_over_a_moving_walk_goes_on_at_its_speed():
+    """A walk an approach follows ends still under way (behavior's lead-in walks): told
+    the body's velocity, the approach's first command keeps it, where from a standing
+    start it brakes to the ramp's first step and accelerates again."""
+    results = {}
+    for told in (True, False):
+        times = []
+        for k in range(6):
+            base = StoppingBase((0.0, 0.0, 0.0), deadband=0.02, deadband_wz=0.05, seed=k)
+            base.standing = False
+            for _ in range(30):  # trotting at 0.4 m/s
+                base.step((0.4, 0.0, 0.0))
+            start = base.pose
+            goal = compose(start, (0.6, 0.05 * (k - 3), 0.1))
+            ctl = ApproachController(ApproachConfig())
+            ctl.reset(tuple(base.v) if told else None)
+            first = None
+            t, done = 0.0, False
+            while t < 30.0 and not done:
+                vx, vy, wz, done = ctl.command(base.pose, goal, 0.015, 0.03, standing=base.standing)
+                first = vx if first is None else first
+                if not done:
+                    base.step((vx, vy, wz))
+                t += 0.05
+            assert done and math.dist(base.pose[:2], goal[:2]) <= 0.015
+            times.append(t)
+            if told:
+                assert first >= 0.3, first
+            else:
+                assert first <= 2 * ApproachConfig().min_speed, first
+        results[told] = float(np.median(times))
+    assert results[True] < results[False] - 0.2, results
 
 
 def test_the_final_alignment_nudges_a_standing_robot():
