@@ -662,12 +662,13 @@ class Path(Message):
     frame: str = string(max_len=64, default="map")
 
 
-@message("qm.NavigateGoal", (1, 0))
+@message("qm.NavigateGoal", (1, 1))
 class NavigateGoal(Message):
     """Walk to a pose in the map: ``place`` names a place of the map's places file (its
     stand pose), else ``pose`` (x, y, yaw in ``frame``, ``map`` or ``odom``). Reached
     within ``tolerance_xy`` (m) and ``tolerance_yaw`` (rad); ``ignore_yaw`` arrives facing
-    any way."""
+    any way. ``pass_through`` (1.1: added): reached as soon as the robot is within the
+    tolerances, still under way and not stopped (an approach that follows takes it on)."""
 
     stamp: float
     place: str = string(max_len=128, default="")
@@ -676,6 +677,7 @@ class NavigateGoal(Message):
     tolerance_xy: float = 0.05
     tolerance_yaw: float = 0.05
     ignore_yaw: bool = False
+    pass_through: bool = False
 
     def _check(self) -> None:
         for f in ("tolerance_xy", "tolerance_yaw"):

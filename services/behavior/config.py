@@ -30,12 +30,12 @@ class NodeConfig:
     action_timeout: float = 900.0
     nav_tolerance_xy: float = 0.10  # m: navigate_to goals (the approach is the precise one)
     nav_tolerance_yaw: float = 0.15  # rad
-    # a walk an approach follows (``navigate_to(lead_in=True)``) ends this loosely, still
-    # under way: navigation's approach takes the robot on at its speed (its velocity
-    # model starts from odometry's) where the walk braked to a stop and the approach
-    # started again from standing (kinematic model: 0.6 s less per walk and approach)
+    # a walk an approach follows (``navigate_to(lead_in=True)``) ends once within this of
+    # its goal, facing any way and still under way (``NavigateGoal.pass_through``):
+    # navigation's approach takes the robot on at its speed (its velocity model starts
+    # from odometry's) and turns it, where the walk braked to a stop, turned to its goal's
+    # yaw and the approach started again from standing
     lead_in_tolerance_xy: float = 0.25  # m
-    lead_in_tolerance_yaw: float = 0.4  # rad
     approach_tolerance_xy: float = 0.015  # m
     approach_tolerance_yaw: float = 0.03  # rad
     # a place's stand: the place plans from the pose the robot stands at, so +-1.5 cm

@@ -449,7 +449,9 @@ class BusRobot:
             pose=list(pose) if pose is not None else [0.0, 0.0, 0.0],
             frame="map",
             tolerance_xy=c.lead_in_tolerance_xy if lead_in else c.nav_tolerance_xy,
-            tolerance_yaw=c.lead_in_tolerance_yaw if lead_in else c.nav_tolerance_yaw,
+            tolerance_yaw=c.nav_tolerance_yaw,
+            ignore_yaw=lead_in,  # the approach turns the robot to its stance
+            pass_through=lead_in,
         )
         return self._act("navigate_to", goal)[0]
 

@@ -107,6 +107,7 @@ class _Goal:
     tol_yaw: float
     ignore_yaw: bool
     t_start: float
+    pass_through: bool = False  # done once within the tolerances, still walking
     path: np.ndarray | None = None
     t_plan: float = -math.inf
     best_distance: float = math.inf
@@ -155,9 +156,11 @@ class Navigator:
         tol_xy: float = 0.05,
         tol_yaw: float = math.radians(3),
         ignore_yaw: bool = False,
+        pass_through: bool = False,
     ) -> str:
         """Check and accept a goal; "" when accepted, else the reason (``no_path: ...``
-        when even the static map has no way there)."""
+        when even the static map has no way there). ``pass_through``: reached once within
+        the tolerances, still under way (``NavigateGoal.pass_through``)."""
         self.last_modes = {}
         if not all(math.isfinite(v) for v in goal):
             return "rejected: the goal is not finite"
@@ -176,7 +179,9 @@ class Navigator:
             # 2026-12-07: 40 walks refused within 20 s, six objects given up)
             if not res.ok and res.reason != START_IN_OBSTACLE:
                 return f"no_path: {res.reason} (on the map alone)"
-        self.goal = _Goal(goal, tol_xy, tol_yaw, ignore_yaw, now, t_progress=now)
+        self.goal = _Goal(
+            goal, tol_xy, tol_yaw, ignore_yaw, now, pass_through=pass_through, t_progress=now
+        )
         self.follower.reset()
         return ""
 
@@ -369,6 +374,7 @@ class Navigator:
             yaw_tol=g.tol_yaw,
             dt=dt,
             standing=standing,
+            pass_through=g.pass_through,
         )
         if cmd.done:
             return self._end("reached", "reached", 0.0)

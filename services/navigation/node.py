@@ -310,7 +310,9 @@ class NavigationNode(Service):
             abs(float(wrap(job.target[2] - p[2]))),
         )
 
-    def _finish(self, job: _Job, outcome: str, reason: str, pose: Pose2 | None) -> None:
+    def _finish(
+        self, job: _Job, outcome: str, reason: str, pose: Pose2 | None, stop: bool = True
+    ) -> None:
         if pose is not None:
             job.final_pose = pose
         job.outcome, job.reason = outcome, reason
@@ -319,7 +321,8 @@ class NavigationNode(Service):
             # the stop after any command for this job: a control tick that read the job
             # before it ended cannot command the robot after the stop (``_send``)
             self.job = None
-            self._stop_robot()
+            if stop:
+                self._stop_robot()
         extra: dict[str, object] = {}
         if job.anchor is not None:
             extra = {"anchor_matches": job.anchor.matches, "anchor_refused": job.anchor.refused}
@@ -678,7 +681,8 @@ class NavigationNode(Service):
                 target = (float(g.pose[0]), float(g.pose[1]), float(g.pose[2]))
             job.target = target
             return self._start_navigation(job, now, pose, target, g.tolerance_xy,
-                                          g.tolerance_yaw, g.ignore_yaw)  # fmt: skip
+                                          g.tolerance_yaw, g.ignore_yaw,
+                                          g.pass_through)  # fmt: skip
         if isinstance(g, m.ApproachGoal):
             job.frame = "odom"
             t = (float(g.target[0]), float(g.target[1]))
@@ -711,13 +715,14 @@ class NavigationNode(Service):
         return True  # explore chooses its goals as it goes
 
     def _start_navigation(self, job: _Job, now: float, pose: Pose2, target: Pose2,
-                          tol_xy: float, tol_yaw: float, ignore_yaw: bool) -> bool:  # fmt: skip
+                          tol_xy: float, tol_yaw: float, ignore_yaw: bool,
+                          pass_through: bool = False) -> bool:  # fmt: skip
         if self.costmap is None:
             self._finish(job, "no_path", "no_path: no map yet", pose)
             return False
         self.walk_exempt = self._tracks_near(pose)
         why = self.navigator.start(target, now, pose, self.costmap, self.static_costmap,
-                                   tol_xy, tol_yaw, ignore_yaw)  # fmt: skip
+                                   tol_xy, tol_yaw, ignore_yaw, pass_through)  # fmt: skip
         if why:
             outcome = "no_path" if why.startswith("no_path") else "rejected"
             self._finish(job, outcome, why, pose)
@@ -748,7 +753,11 @@ class NavigationNode(Service):
                 job.text = st.reason
             return
         if job.kind == "navigate":
-            self._finish(job, st.state, st.reason, pose)
+            g = job.goal
+            # a pass-through goal reached hands the robot on walking: no stop (the next
+            # request, an approach, comes within locomotion's cmd_timeout; else that stops it)
+            walking_on = st.state == "reached" and isinstance(g, m.NavigateGoal) and g.pass_through
+            self._finish(job, st.state, st.reason, pose, stop=not walking_on)
 
     def _free_heading(
         self,

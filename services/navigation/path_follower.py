@@ -202,11 +202,14 @@ class PathFollower:
         yaw_tol: float | None = None,
         dt: float | None = None,
         standing: bool | None = None,
+        pass_through: bool = False,
     ) -> FollowCommand:
         """The body velocity command (base frame) that follows ``path`` (N, 2, map frame)
         from ``pose`` and ends at its last point facing ``goal_yaw`` (None: any yaw);
         ``clearance`` is the robot's distance to the nearest obstacle (m); ``standing``
-        whether locomotion stands (None: unknown, no standing nudges)."""
+        whether locomotion stands (None: unknown, no standing nudges). ``pass_through``:
+        done the moment the robot is within the tolerances, however fast it still walks
+        (``NavigateGoal.pass_through``)."""
         cfg = self.config
         dt = cfg.dt if dt is None else dt
         xy_tol = cfg.xy_tolerance if xy_tol is None else xy_tol
@@ -230,6 +233,10 @@ class PathFollower:
         left = float(self._s[-1] - self._s[self._idx]) + math.hypot(
             path[self._idx][0] - pose[0], path[self._idx][1] - pose[1]
         )
+        if pass_through and to_goal <= xy_tol and self._s[-1] - self._s[self._idx] <= xy_tol:
+            eyaw = 0.0 if goal_yaw is None else float(wrap(goal_yaw - pose[2]))
+            if abs(eyaw) <= yaw_tol:
+                return FollowCommand(*self._last, True, to_goal, False, "pass")
         if to_goal < cfg.final_distance and self._s[-1] - self._s[self._idx] < cfg.final_distance:
             self._final = True
         if self._final:

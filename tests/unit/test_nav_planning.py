@@ -627,6 +627,33 @@ def test_a_loose_goal_ends_where_the_body_stops_without_waiting_to_stand():
         assert c.vx == c.vy == c.wz == 0.0
 
 
+def test_a_pass_through_goal_ends_within_its_tolerance_still_walking():
+    """A walk an approach follows (``NavigateGoal.pass_through``) ends the moment the
+    robot is within the tolerance, at speed and facing any way; the same loose goal
+    otherwise brakes to a near stop and turns to its yaw first."""
+    ends = {}
+    for through in (True, False):
+        f = PathFollower(FollowerConfig())
+        base = LeggedBase((0.0, 0.0, 0.0), noise=0.0)
+        path = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
+        t, c = 0.0, None
+        while t < 20.0:
+            c = f.command(
+                base.pose, path, 1.0 if not through else None, 1.0, xy_tol=0.25,
+                yaw_tol=0.15, dt=0.05, pass_through=through,
+            )  # fmt: skip
+            if c.done:
+                break
+            base.step((c.vx, c.vy, c.wz))
+            t += 0.05
+        assert c is not None and c.done
+        ends[through] = (t, float(base.v[0]), 2.0 - base.pose[0])
+    t_on, v_on, left_on = ends[True]
+    assert 0.15 <= left_on <= 0.25 and v_on >= 0.3, ends  # within it, still walking
+    t_stop, v_stop, _ = ends[False]
+    assert v_stop < 0.25 and t_stop >= t_on + 0.5, ends
+
+
 def test_planner_config_is_frozen():
     with pytest.raises(AttributeError):
         PlannerConfig().cost_weight = 1.0  # type: ignore[misc]
