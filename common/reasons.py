@@ -10,7 +10,14 @@ from __future__ import annotations
 import math
 import re
 
-__all__ = ["narrow_side_text", "parse_narrow_side", "parse_reach_band", "reach_band_text"]
+__all__ = [
+    "narrow_side_text",
+    "parse_narrow_side",
+    "parse_reach_band",
+    "parse_refused_class",
+    "reach_band_text",
+    "refusal_text",
+]
 
 
 #: How a grasp refused as unreachable names the distances ahead (body x, m) it would be
@@ -45,3 +52,21 @@ def parse_narrow_side(reason: str) -> float | None:
     """The turn (rad) of a reason holding :func:`narrow_side_text`'s clause, else None."""
     m = _NARROW_SIDE.search(reason)
     return None if m is None else math.radians(float(m[1]))
+
+
+#: How perception's refusal of an estimate names what it saw: "<code>: <class> in
+#: <camera> (<detail>)". The task reads the class of a refusal to probe from the side
+#: (a "mug" from afar that the close view sees as a coffee can, too tall to take from above).
+_REFUSED = re.compile(r"^([a-z ]+): ([a-z_]+) in ([a-z_]+camera)\b")
+
+
+def refusal_text(code: str, label: str, camera: str, detail: str = "") -> str:
+    """A refused estimate's reason: ``code`` (e.g. "probe horizontally"), the class it saw
+    and the camera; ``detail`` in brackets after it."""
+    return f"{code}: {label} in {camera}" + (f" ({detail})" if detail else "")
+
+
+def parse_refused_class(reason: str, code: str) -> str | None:
+    """The class named by a reason written by :func:`refusal_text` with ``code``, else None."""
+    m = _REFUSED.match(reason)
+    return m[2] if m is not None and m[1] == code else None

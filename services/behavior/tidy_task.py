@@ -79,7 +79,7 @@ from typing import Literal
 
 from quadmanip.common.object_catalogue import Catalogue
 from quadmanip.common.places import Place
-from quadmanip.common.reasons import parse_narrow_side, parse_reach_band
+from quadmanip.common.reasons import parse_narrow_side, parse_reach_band, parse_refused_class
 from quadmanip.services.behavior.coverage import (
     SearchConfig,
     sees,
@@ -2026,9 +2026,7 @@ class TidyTask:
                     None,
                 )
         if not out.ok and NOT_DETECTED in out.reason and not probe.horizontal:
-            plan = self._class_from_close(rec, probe)
-            if plan is not None:
-                out = Outcome(True)
+            out, plan = self._class_from_close(rec, probe, out)
         if not out.ok or plan is None:
             turn = parse_narrow_side(out.reason) if probe.horizontal else None
             if turn is not None and not rec.end_on and self._table_of(rec) is not None:
@@ -2138,21 +2136,41 @@ class TidyTask:
             rec.table_heading = slants[k]
         return True
 
-    def _class_from_close(self, rec: ObjectRecord, probe: _Probe) -> GraspPlan | None:
-        """After a probe that found no ``rec.label`` where its track lies: what the
-        detector takes the object there for from close by, in the probing view (the
-        camera looks down at it from 0.4 m; the track's class was voted from afar). When
-        that is another class, within ``estimate_gate`` of the track, the object is that
-        class: its record is renamed, it goes to that class's place, and the grasp
+    def _class_from_close(
+        self, rec: ObjectRecord, probe: _Probe, missed: Outcome
+    ) -> tuple[Outcome, GraspPlan | None]:
+        """After a probe that found no ``rec.label`` where its track lies (``missed``):
+        what the detector takes the object there for from close by, in the probing view
+        (the camera looks down at it from 0.4 m; the track's class was voted from afar).
+        When that is another class, within ``estimate_gate`` of the track, the object is
+        that class: its record is renamed, it goes to that class's place, and the grasp
         perception planned of it is the plan (seed-103: a marker on the living table,
-        taken for a bowl from afar, was given up as a false detection). None: nothing
-        else there either."""
+        taken for a bowl from afar, was given up as a false detection). On a table, a
+        class perception would take only from the side is renamed too, and its refusal
+        is the outcome: the side probe follows (seed-139, 2026-12-07: a coffee can taken
+        for a mug from afar, seen as a coffee can from above, then given up as a false
+        mug). Else ``missed`` and no plan."""
         out, plan = self.robot.estimate_grasp("", probe.camera, -1)
         if not out.ok or plan is None:
-            return None
+            seen = parse_refused_class(out.reason, PROBE_SIDEWAYS)
+            twin = any(
+                r is not rec
+                and r.label == seen
+                and not r.finished
+                and _dist(r.position, rec.position) < self.cfg.same_object_radius
+                for r in self.report.objects
+            )
+            if seen and seen != rec.label and seen in self.classes and self._table_of(rec):
+                if twin:  # another record stands for it: this one is its twin from afar
+                    return missed, None
+                with self._lock:
+                    rec.label, rec.place = seen, self.classes[seen].place
+                    rec.close_label = seen
+                return out, None
+            return missed, None
         if plan.object_name == rec.label or not self._rename_from_close(rec, plan):
-            return None
-        return plan
+            return missed, None
+        return Outcome(True), plan
 
     def _rename_from_close(self, rec: ObjectRecord, plan: GraspPlan, merge: bool = False) -> bool:
         """Name ``rec`` by the class of ``plan`` (what the probing view took it for), which

@@ -39,6 +39,7 @@ from quadmanip.common import messages as m
 from quadmanip.common.actions import ActionFailed, GoalHandle
 from quadmanip.common.joint_layout import N_LEG_JOINTS
 from quadmanip.common.object_catalogue import load_catalogue
+from quadmanip.common.reasons import refusal_text
 from quadmanip.common.robot_description import FRONT_CAMERA, GRIPPER_CAMERA
 from quadmanip.common.rotations import quat_from_yaw, yaw_from_quat
 from quadmanip.common.service import Input, Output, Service, run_service
@@ -617,8 +618,7 @@ class PerceptionNode(Service):
             self.counters["implausible_grasp"] += 1
             raise ActionFailed(f"{img.camera}: {why}")
         if not est.ok:
-            detail = f" ({est.detail})" if est.detail else ""
-            reason = f"{est.reason}: {det.label} in {img.camera}{detail}"
+            reason = refusal_text(est.reason, det.label, img.camera, est.detail)
             if cfg.node.save_rejected:
                 self._save_rejection(img, det, where, probing, reason)
             raise ActionFailed(reason)

@@ -619,6 +619,8 @@ class FakeHouse:
             near = [x for x in self.things.values() if x is not self.held]
             t = min(near, key=lambda x: _bearing(self.at, x.position)[0], default=None)
             label = t.label if t is not None else ""
+            if label in self.not_level and camera == "gripper_camera":
+                return Outcome(False, f"probe horizontally: {label} in gripper_camera"), None
         if t is None or t is self.held:
             return Outcome(False, "not in view"), None
         if t.label in self.placed_off:
@@ -1222,6 +1224,24 @@ def test_a_false_detection_is_given_up_after_two_probes_that_see_nothing() -> No
     assert not rec.close_label
     for t in things:  # the real ones are tidied all the same
         assert _record(report, t.label).placed
+
+
+def test_an_object_of_a_class_taken_from_the_side_seen_from_close_is_side_probed() -> None:
+    """seed-139 (2026-12-07): a coffee can on the kitchen table, a "mug" from afar; the
+    probe from above found no mug, and the close view's any-class estimate saw a coffee
+    can too tall to take from above ("probe horizontally"). It was given up as a false
+    mug; now it is renamed and probed from the side."""
+    things = _things()
+    can = Thing("coffee_can", 5, (3.0, 3.2, 0.47), on_table=True)
+    house = FakeHouse([*things, can])
+    house.mistaken[5] = "mug"
+    house.not_level.add("coffee_can")
+    report = _task(house).run()
+    rec = _record(report, "coffee_can")
+    assert rec.placed and not rec.given_up and rec.close_label == "coffee_can"
+    assert can.released_in == CLASSES["coffee_can"].place
+    assert ("estimate_grasp", ("mug", 5)) in house.calls
+    assert ("coffee_can", "front_camera") in house.probed_with  # the side probe
 
 
 def test_an_object_of_another_class_from_close_by_goes_where_that_class_goes() -> None:

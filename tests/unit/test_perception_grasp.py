@@ -17,7 +17,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from quadmanip.common.object_catalogue import load_catalogue
-from quadmanip.common.reasons import parse_narrow_side
+from quadmanip.common.reasons import parse_narrow_side, parse_refused_class, refusal_text
 from quadmanip.common.robot_description import GRASP_MAX_TILT, HORIZONTAL_GRASP_DEPTH
 from quadmanip.common.rotations import quat_from_axis_angle, quat_to_mat
 from quadmanip.services.perception import rejections
@@ -628,3 +628,13 @@ def test_a_rejected_estimate_saved_by_the_node_replays_the_same(cat, tmp_path):
     assert (again.ok, again.reason, again.detail) == (direct.ok, direct.reason, direct.detail)
     assert rejections.main([str(path), "--png", str(tmp_path / "png")]) == 0
     assert (tmp_path / "png" / (path.stem + ".png")).exists()
+
+
+def test_a_refusal_names_the_class_it_saw_for_the_task_to_read() -> None:
+    # the task renames a track from afar by what the close view refused to take from
+    # above (behavior: _class_from_close); one text, written and read in common.reasons
+    why = refusal_text("probe horizontally", "coffee_can", "gripper_camera", "height 0.139 m")
+    assert why == "probe horizontally: coffee_can in gripper_camera (height 0.139 m)"
+    assert parse_refused_class(why, "probe horizontally") == "coffee_can"
+    assert parse_refused_class(why, "no graspable candidate") is None
+    assert parse_refused_class("not in view: no mug detected", "probe horizontally") is None
