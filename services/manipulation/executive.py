@@ -44,7 +44,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from quadmanip.common import robot_description as rd
 from quadmanip.common.reasons import reach_band_text
-from quadmanip.services.manipulation.arm_kinematics import ArmGeometry, ArmTarget, held_offset
+from quadmanip.services.manipulation.arm_kinematics import (
+    ArmGeometry,
+    ArmTarget,
+    fk_tcp,
+    held_offset,
+)
 from quadmanip.services.manipulation.config import ManipulationConfig
 from quadmanip.services.manipulation.drawer import DrawerPrimitive, plan_drawer
 from quadmanip.services.manipulation.grasp import (
@@ -55,7 +60,7 @@ from quadmanip.services.manipulation.grasp import (
 )
 from quadmanip.services.manipulation.gravity import GravityCompensator
 from quadmanip.services.manipulation.gripper import GraspMonitor, GripState, grasp_force
-from quadmanip.services.manipulation.place import PlacePrimitive, plan_place
+from quadmanip.services.manipulation.place import PlacePrimitive, place_hang, plan_place
 from quadmanip.services.manipulation.postures import resolve_postures
 from quadmanip.services.manipulation.primitive import (
     ArmCommand,
@@ -226,6 +231,7 @@ class Executive:
         # the held object's middle in the tool frame (None: not known; the grasp point is
         # placed): from the grasp goal's ``center`` (perception's model of the object)
         self.held: np.ndarray | None = None
+        self.grasp_approach = ""  # how it was grasped (vertical, horizontal; "": not known)
         self._lock = threading.Lock()
         self._run: _Run | None = None
         self._grip_state = self.monitor.state
@@ -426,12 +432,14 @@ class Executive:
         if isinstance(request, PlaceRequest):
             if not self.monitor.holding:
                 raise GraspRejected("not_holding", "the gripper holds nothing to place")
+            pitch = fk_tcp(self.geom, obs.q_arm).pitch
+            hang = place_hang(self.hang, self.held, self.grasp_approach, pitch)
             plan = plan_place(
                 self.geom,
                 cfg,
                 np.asarray(request.position, dtype=float),
                 obs.q_arm,
-                self.hang,
+                hang,
                 self.body,
                 yaw=request.yaw,
                 held=self.held,
@@ -440,7 +448,8 @@ class Executive:
             held = "unknown" if self.held is None else np.round(self.held, 3).tolist()
             prim.note = (
                 f"asked {np.round(request.position, 3).tolist()} yaw {request.yaw}, "
-                f"held middle {held}, hang {self.hang:.3f}; {plan.describe()}"
+                f"held middle {held}, hang {hang:.3f} ({self.grasp_approach} grasp's "
+                f"{self.hang:.3f}); {plan.describe()}"
             )
             return prim
         if isinstance(request, DrawerRequest):
@@ -543,10 +552,12 @@ class Executive:
                 # (a grasp that failed may still leave something in the fingers: not the
                 # object the last offset was of)
                 self.held = None
+                self.grasp_approach = ""
             if isinstance(prim, GraspPrimitive) and prim.status is Status.SUCCEEDED:
                 assert isinstance(run.request, GraspRequest)
                 self.hang = self._hang_of(run.request, prim.plan.approach)
                 self.held = self._held_of(run.request, prim.plan.reach)
+                self.grasp_approach = prim.plan.approach
         if self._run is run:
             self._run = None
         run.finished.set()

@@ -20,6 +20,7 @@ import itertools
 import math
 
 import numpy as np
+from quadmanip.common.robot_description import HORIZONTAL_GRASP_DEPTH
 from quadmanip.common.rotations import rot_x, rot_y
 from quadmanip.services.manipulation.arm_kinematics import (
     ArmGeometry,
@@ -38,7 +39,7 @@ from quadmanip.services.manipulation.primitive import (
     Script,
 )
 
-__all__ = ["PlacePlan", "PlacePrimitive", "plan_place"]
+__all__ = ["PlacePlan", "PlacePrimitive", "place_hang", "plan_place"]
 
 
 class PlacePlan:
@@ -59,6 +60,22 @@ class PlacePlan:
             f"release x {r.x:.3f} z {r.z:.3f} pitch {r.pitch:.2f} roll {r.roll:.2f}, "
             f"body x {b.x_offset:+.3f} y {b.y_offset:+.3f} z {b.z_offset:+.3f}"
         )
+
+
+def place_hang(hang: float, held: np.ndarray | None, approach: str, pitch: float) -> float:
+    """The held object's hang below the tool centre with the tool at ``pitch``; ``hang``
+    is the one of the grasp's pose. A horizontal grasp's pads are
+    ``HORIZONTAL_GRASP_DEPTH`` into the object's near face, its middle ``held`` (tool
+    frame) that far along the tool's axis: carried with the tool pointing down (the carry
+    postures), the object hangs along that axis, its far end ``2 held_x + depth`` below
+    the tool centre, not ``hang`` (the height it had under the level tool). With the
+    grasp's hang, a cracker box side-grasped from a table (5 cm then, 13 cm carried) was
+    lowered 8 cm into the tray's floor, pushed up between the pads, and every release
+    after it ended with it still between the fingers (seed-139, 2026-12-07: ten places
+    `object_stuck`; seed-137: one)."""
+    if approach != "horizontal" or held is None or pitch < 1.0:
+        return hang
+    return max(hang, 2.0 * max(float(held[0]), 0.0) + HORIZONTAL_GRASP_DEPTH)
 
 
 def plan_place(

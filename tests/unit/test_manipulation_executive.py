@@ -444,3 +444,31 @@ def test_the_grip_verdict_is_sent_before_the_goal_ends(stuck):
         assert verdicts[-1].grip is GripState.HOLDING and verdicts[-1].mass == 0.35
     else:
         assert verdicts[-1].grip is not GripState.HOLDING and verdicts[-1].mass == 0.0
+
+
+def test_a_side_held_object_carried_tool_down_is_placed_by_its_far_end() -> None:
+    """seed-139 (2026-12-07): a cracker box side-grasped from a table hung 5 cm under the
+    level tool; carried tool down it hangs 13 cm along the tool's axis. Placed with the
+    grasp's 5 cm it went 8 cm into the tray's floor and stuck between the fingers ten
+    times. A vertical grasp's hang, or a side grasp placed level, is the grasp's own."""
+    from quadmanip.common.robot_description import HORIZONTAL_GRASP_DEPTH
+    from quadmanip.services.manipulation.place import place_hang
+
+    held = np.array([0.051, 0.0, 0.055])  # the trial's held middle (tool frame)
+    down = POSTURES["carry"]
+    pitch = float(ex_mod.fk_tcp(GEOM, down).pitch)
+    assert pitch > 1.5
+    assert place_hang(0.05, held, "horizontal", pitch) == pytest.approx(
+        0.102 + HORIZONTAL_GRASP_DEPTH
+    )
+    assert place_hang(0.05, held, "horizontal", 0.0) == 0.05  # still level
+    assert place_hang(0.05, held, "vertical", pitch) == 0.05
+    assert place_hang(0.05, None, "horizontal", pitch) == 0.05  # middle unknown
+    # the executive keeps how the object was grasped, for its place
+    ex = _executive()
+    plant = Plant(POSTURES["stow"])
+    req = dataclasses.replace(_floor_grasp(ex), center=(0.36, 0.0, ex.floor_z + 0.05))
+    assert ex.accept(req, plant.obs(), token=req).accepted
+    ex.start(req)
+    plant.run(ex)
+    assert ex.grasp_approach == "vertical"
