@@ -2153,19 +2153,7 @@ class TidyTask:
         out, plan = self.robot.estimate_grasp("", probe.camera, -1)
         if not out.ok or plan is None:
             seen = parse_refused_class(out.reason, PROBE_SIDEWAYS)
-            twin = any(
-                r is not rec
-                and r.label == seen
-                and not r.finished
-                and _dist(r.position, rec.position) < self.cfg.same_object_radius
-                for r in self.report.objects
-            )
-            if seen and seen != rec.label and seen in self.classes and self._table_of(rec):
-                if twin:  # another record stands for it: this one is its twin from afar
-                    return missed, None
-                with self._lock:
-                    rec.label, rec.place = seen, self.classes[seen].place
-                    rec.close_label = seen
+            if seen and self._table_of(rec) and self._rename_as(rec, seen, rec.position):
                 return out, None
             return missed, None
         if plan.object_name == rec.label or not self._rename_from_close(rec, plan):
@@ -2179,18 +2167,22 @@ class TidyTask:
         record of that class there (not yet grasped) stands for another object, unless
         ``merge``: then for this one, seen as two tracks of two classes from afar (seed-112:
         a tennis ball, also filed as a lego); it is dropped and its track never taken."""
-        name = plan.object_name
-        if name == rec.label or name not in self.classes:
-            return False
         if _dist(plan.position_map, rec.position) > self.cfg.estimate_gate:
             return False  # another object in view, not the one the track stands for
+        return self._rename_as(rec, plan.object_name, plan.position_map, merge)
+
+    def _rename_as(self, rec: ObjectRecord, name: str, at: Point3, merge: bool = False) -> bool:
+        """Name ``rec`` ``name`` (seen at ``at``); False (unchanged) when that class is
+        unknown or another record stands for it there (:meth:`_rename_from_close`)."""
+        if name == rec.label or name not in self.classes:
+            return False
         twins = [
             r
             for r in self.report.objects
             if r is not rec
             and r.label == name
             and not r.finished
-            and _dist(r.position, plan.position_map) < self.cfg.same_object_radius
+            and _dist(r.position, at) < self.cfg.same_object_radius
         ]
         if twins and (not merge or any(r.grasped for r in twins)):
             return False  # an object another record stands for
