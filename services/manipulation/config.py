@@ -82,8 +82,14 @@ class GraspConfig:
     # Lift after the grasp (m) and hold-to-verify time (s).
     lift_height: float = 0.10
     verify_time: float = 0.3
-    # Time the body is given to reach a commanded pose offset (s).
+    # Time the body is given to reach a commanded pose offset (s): at most
+    # body_settle_time, at least body_settle_min, body_settle_per_m per metre of the
+    # largest offset change between (locomotion's stand, unit-test plant: a 3 cm rise
+    # within 3 mm after 0.53 s, an 8 cm crouch after 0.57 s, a 6 mm shift after 0.13 s;
+    # a whole second for every place's few millimetres cost ~0.6 s per object)
     body_settle_time: float = 1.0
+    body_settle_min: float = 0.3
+    body_settle_per_m: float = 10.0
     # Tolerance between the commanded and measured arm joints at the end of a move (rad).
     arm_tolerance: float = 0.08
     # Extra time beyond a trajectory's end before the arm is declared stuck (s).

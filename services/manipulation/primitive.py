@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 from quadmanip.services.manipulation.arm_kinematics import ArmGeometry
-from quadmanip.services.manipulation.config import ManipulationConfig
+from quadmanip.services.manipulation.config import GraspConfig, ManipulationConfig
 from quadmanip.services.manipulation.gripper import GraspMonitor, GripState
 from quadmanip.services.manipulation.trajectory import (
     JointTrajectory,
@@ -85,6 +85,20 @@ class BodyPoseRequest:
 
 
 Command = ArmCommand | GripperCmd | BodyPoseRequest
+
+
+def body_settle_time(cfg: GraspConfig, old: BodyPoseRequest, new: BodyPoseRequest) -> float:
+    """Seconds the trunk is given to go from offsets ``old`` to ``new``: longer for a
+    longer way (GraspConfig.body_settle_min/per_m), at most ``body_settle_time``, which a
+    pitch change always gets."""
+    if new.pitch != old.pitch:
+        return cfg.body_settle_time
+    way = max(
+        abs(new.x_offset - old.x_offset),
+        abs(new.y_offset - old.y_offset),
+        abs(new.z_offset - old.z_offset),
+    )
+    return min(cfg.body_settle_time, cfg.body_settle_min + cfg.body_settle_per_m * way)
 
 
 class Status(StrEnum):
@@ -388,7 +402,7 @@ class Primitive:
         t_end = -math.inf
         if new != self.body:
             assert self._last_obs is not None
-            t_end = self._last_obs.t + self.cfg.grasp.body_settle_time
+            t_end = self._last_obs.t + body_settle_time(self.cfg.grasp, self.body, new)
             self.body = new
             yield [new]
         if during is not None:

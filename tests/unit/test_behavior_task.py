@@ -152,6 +152,7 @@ class FakeHouse:
         # of every walk or approach that started while it moved
         self.arm_until = 0.0
         self.arm_moving_during: list[tuple[str, str]] = []
+        self.posture_waits: list[bool] = []  # per move_to_posture: whether it was waited for
         self.looked_still: list[bool] = []  # per wait_for_arm: the arm had arrived already
         self.dwelt_while_moving = 0  # waits (a look's dwell) begun before the arm arrived
         self.memory: dict[int, SeenObject] = {}
@@ -572,6 +573,7 @@ class FakeHouse:
     def move_to_posture(self, posture: str, wait: bool = True) -> Outcome:
         self._arm_settled()
         self.calls.append(("move_to_posture", posture))
+        self.posture_waits.append(wait)
         if (refused := self._request("move_to_posture")) is not None:
             return refused
         if wait:
@@ -972,6 +974,29 @@ def test_the_arm_moves_to_its_next_posture_while_the_robot_walks(tidy_run) -> No
     assert _record(report, "cracker_box").placed
     assert "probe_tall" in _calls(house, "move_to_posture")
     assert "probe_tall" not in {p for _, p in house.arm_moving_during}
+
+
+def test_the_arm_folds_as_the_robot_walks_off_from_a_place_but_the_drawer(tidy_run) -> None:
+    """After a place the arm folds while the robot walks off (it stands above the rim of
+    an open box); from the drawer, whose mouth is by the cabinet's front, it folds first."""
+    house, report, _ = tidy_run
+    assert all(r.placed for r in report.objects)
+    top = PLACES["drawer_top"].target
+    postures = iter(house.posture_waits)
+    waits = [next(postures) if c[0] == "move_to_posture" else None for c in house.calls]
+    folds = {True: 0, False: 0}  # per place: into the drawer
+    for i, (what, arg) in enumerate(house.calls):
+        if what != "place":
+            continue
+        j = next(k for k in range(i + 1, len(house.calls)) if house.calls[k][0] != "place")
+        assert house.calls[j] == ("move_to_posture", "stow"), house.calls[j]
+        drawer = math.dist(arg[0][:2], top[:2]) < 0.3
+        assert waits[j] is drawer, (arg, drawer)
+        folds[drawer] += 1
+        if not drawer:  # the next request is a walk, or the task's end
+            after = [c[0] for c in house.calls[j + 1 :] if c[0] != "move_to_posture"][:1]
+            assert after in ([], ["navigate_to"], ["approach"]), after
+    assert folds[True] >= 1 and folds[False] >= 2
 
 
 def test_a_walk_an_approach_follows_ends_as_a_lead_in_and_no_other_does(tidy_run) -> None:

@@ -355,3 +355,33 @@ def test_node_helpers_held_mass_and_quaternion():
         q /= np.linalg.norm(q)
         q = q if q[0] >= 0 else -q
         assert mat_to_quat(quat_to_mat(q)) == pytest.approx(q, abs=1e-9)
+
+
+def test_the_trunk_reaches_a_body_offset_in_the_time_manipulation_waits_for_it():
+    """Manipulation waits for a trunk move a time that grows with its length
+    (primitive.body_settle_time): by then the trunk stands within 4 mm (its drift
+    tolerance, PrimitiveConfig.drift_tol) of each offset, from a few millimetres (a place's
+    sideways shift) to an 8 cm crouch."""
+    from quadmanip.services.manipulation.config import load_manipulation_config
+    from quadmanip.services.manipulation.primitive import BodyPoseRequest, body_settle_time
+
+    cfg = load_manipulation_config()
+    run = Run()
+    run.stand()
+    ref = run.base_minus_feet()
+    z0 = run.plant.true_position()[2]
+    old = BodyPoseRequest()
+    waits = []
+    for z, y in ((0.0, 0.006), (0.03, 0.006), (0.015, -0.034), (-0.08, 0.0), (0.0, 0.0)):
+        new = BodyPoseRequest(y_offset=y, z_offset=z)
+        wait = body_settle_time(cfg.grasp, old, new)
+        waits.append(wait)
+        run.ctl.set_body_pose(z, 0.0, y, 0.0, 0.0, 0.0)
+        run.until(run.plant.time + wait)
+        shift = run.base_minus_feet() - ref
+        dz = run.plant.true_position()[2] - z0
+        assert abs(shift[1] - y) < cfg.primitive.drift_tol, (z, y, wait, shift)
+        assert abs(dz - z) < cfg.primitive.drift_tol, (z, y, wait, dz)
+        old = new
+    assert not run.fell
+    assert min(waits) < 0.5 * cfg.grasp.body_settle_time  # a short move is not waited long
