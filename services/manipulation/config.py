@@ -28,7 +28,7 @@ class MotionConfig:
     kp: tuple[float, float, float, float] = (80.0, 80.0, 40.0, 10.0)
     kd: tuple[float, float, float, float] = (3.0, 3.0, 1.5, 0.3)
     dt: float = 0.02
-    linear_speed: float = 0.15  # m/s: straight tool moves with an object in the fingers
+    linear_speed: float = 0.2  # m/s: straight tool moves with an object in the fingers
     empty_linear_speed: float = 0.25  # m/s: ... with nothing in them
     angular_speed: float = 1.0
     # Posture moves with an object in the gripper run at this share of v_max (a_max
