@@ -79,6 +79,10 @@ class GraspConfig:
     max_crouch: float = 0.10
     # How much taller than nominal the body may stand to reach a high region (m).
     max_rise: float = 0.03
+    # A vertical grasp beyond the upright tool's reach leans the tool forward in steps of
+    # reach_lean_step, up to max_reach_lean (rad) more than asked (GraspGoal.tilt)
+    reach_lean_step: float = 0.1
+    max_reach_lean: float = 0.3
     # Lift after the grasp (m) and hold-to-verify time (s).
     lift_height: float = 0.10
     verify_time: float = 0.3

@@ -168,31 +168,23 @@ def plan_grasp(
     ref = np.asarray(cfg.motion.elbow_ref, dtype=float)
     if approach == "vertical":
         roll = _wrist_roll(geom, -yaw)
-        last = ""
-        pitch = math.pi / 2 - tilt
-        # ready: grasp_ready_z back along the tool axis (straight above when not tilted)
-        back_x, back_z = -g.grasp_ready_z * math.cos(pitch), g.grasp_ready_z * math.sin(pitch)
-        for crouch in np.arange(0.0, g.max_crouch + 1e-9, 0.005):
-            zg = z + crouch
-            grasp = ArmTarget(x, zg, pitch, roll)
-            ready = ArmTarget(x + back_x, zg + back_z, pitch, roll)
-            lift = ArmTarget(x, zg + g.lift_height, pitch, roll)
-            targets = [*_line(ready, grasp, 8), *_line(grasp, lift, 8)]
-            last = _reachable(geom, targets, ref, cfg.primitive)
-            if not last:
-                sol = solve_ik(geom, ready, q_ref=ref, roll_symmetric=False)
-                off = BodyPoseRequest(body.x_offset, y_total, body.z_offset - float(crouch))
-                return GraspPlan(
-                    "vertical",
-                    off,
-                    off,
-                    ready,
-                    grasp,
-                    lift,
-                    sol.q,
-                    open_gap,  # type: ignore[arg-type]
-                )
-        raise GraspRejected("unreachable", f"vertical grasp even crouched {g.max_crouch} m: {last}")
+        first = ""
+        # beyond the arm's reach upright, the tool leans forward (its wrist comes nearer
+        # the shoulder by the tool's length x sin(lean)): a spoon's bowl on the living
+        # table 2 cm past the reach from the table's edge, which the trunk cannot pass
+        # (paper-2, 2026-12-07), given up. The pads still close across the object.
+        most = min(tilt + g.max_reach_lean, GRASP_MAX_TILT)
+        leans = [tilt, *np.arange(tilt + g.reach_lean_step, most + 1e-9, g.reach_lean_step)]
+        for lean in leans:
+            plan, last = _vertical(geom, cfg, x, z, float(lean), roll, y_total, body, open_gap)
+            first = first or last
+            if plan is not None:
+                return plan
+            if not last.startswith("too_far"):
+                break
+        raise GraspRejected(
+            "unreachable", f"vertical grasp even crouched {g.max_crouch} m: {first}"
+        )
     # horizontal
     r = g.lift_height
     wrist_z = z - geom.d1
@@ -216,6 +208,39 @@ def plan_grasp(
     ready_body = BodyPoseRequest(body.x_offset, y_total, body.z_offset)
     grasp_body = BodyPoseRequest(body.x_offset + dx, y_total, body.z_offset)
     return GraspPlan("horizontal", ready_body, grasp_body, ready, grasp, lift, sol.q, open_gap)  # type: ignore[arg-type]
+
+
+def _vertical(
+    geom: ArmGeometry,
+    cfg: ManipulationConfig,
+    x: float,
+    z: float,
+    tilt: float,
+    roll: float,
+    y_total: float,
+    body: BodyPoseRequest,
+    open_gap: float,
+) -> tuple[GraspPlan | None, str]:
+    """A vertical grasp of arm-plane point (x, z) with the tool leaning ``tilt`` forward,
+    crouching as little as it needs; (None, why) when no crouch reaches it."""
+    g = cfg.grasp
+    ref = np.asarray(cfg.motion.elbow_ref, dtype=float)
+    pitch = math.pi / 2 - tilt
+    # ready: grasp_ready_z back along the tool axis (straight above when not tilted)
+    back_x, back_z = -g.grasp_ready_z * math.cos(pitch), g.grasp_ready_z * math.sin(pitch)
+    last = ""
+    for crouch in np.arange(0.0, g.max_crouch + 1e-9, 0.005):
+        zg = z + crouch
+        grasp = ArmTarget(x, zg, pitch, roll)
+        ready = ArmTarget(x + back_x, zg + back_z, pitch, roll)
+        lift = ArmTarget(x, zg + g.lift_height, pitch, roll)
+        targets = [*_line(ready, grasp, 8), *_line(grasp, lift, 8)]
+        last = _reachable(geom, targets, ref, cfg.primitive)
+        if not last:
+            sol = solve_ik(geom, ready, q_ref=ref, roll_symmetric=False)
+            off = BodyPoseRequest(body.x_offset, y_total, body.z_offset - float(crouch))
+            return GraspPlan("vertical", off, off, ready, grasp, lift, sol.q, open_gap), ""  # type: ignore[arg-type]
+    return None, last
 
 
 class GraspPrimitive(Primitive):

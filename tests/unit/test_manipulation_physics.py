@@ -8,6 +8,7 @@ gripper, objects - moves only through the actuator layer's torques and contacts.
 """
 
 import math
+from dataclasses import replace
 
 import mujoco
 import numpy as np
@@ -15,7 +16,7 @@ import pytest
 from quadmanip.services.manipulation.arm_kinematics import ArmGeometry, ArmTarget, held_offset
 from quadmanip.services.manipulation.config import load_manipulation_config
 from quadmanip.services.manipulation.drawer import DrawerPrimitive, plan_drawer
-from quadmanip.services.manipulation.grasp import GraspPrimitive, plan_grasp
+from quadmanip.services.manipulation.grasp import GraspPrimitive, GraspRejected, plan_grasp
 from quadmanip.services.manipulation.place import PlacePrimitive, plan_place
 from quadmanip.services.manipulation.postures import resolve_postures
 from quadmanip.services.manipulation.primitive import BodyPoseRequest, PostureMove, Status
@@ -116,6 +117,30 @@ def _turned_in_grip(h: SimHarness, name: str, since: np.ndarray) -> float:
     rel = h.data.site_xmat[site].reshape(3, 3).T @ obj.reshape(3, 3)
     cos = (np.trace(since.T @ rel) - 1.0) / 2.0
     return math.degrees(math.acos(max(-1.0, min(1.0, cos))))
+
+
+@pytest.mark.parametrize(("name", "x"), [("spoon", 0.40), ("rubiks_cube", 0.46)])
+def test_a_table_object_past_the_upright_reach_is_grasped_with_the_tool_leaning(name, x):
+    """From a table's edge the trunk comes no nearer: a spoon's bowl 2 cm past the upright
+    tool's reach was given up (paper-2, 2026-12-07). Leaning forward (GraspConfig.
+    max_reach_lean) the tool takes it, and holds it lifted."""
+    o = CAT.objects[name]
+    h = SimHarness(
+        [PlacedObject(name, (x, 0.0, TABLE_HEIGHT + o.size[2] / 2 + 0.001), yaw=0.15)],
+        table_boxes(length=0.8),
+    )
+    h.settle(0.3)
+    z0 = h.object_pos(name)[2]
+    gs = grasp_from_ground_truth(h, name, TABLE_HEIGHT, "vertical")  # the bowl, far side
+    upright = replace(CFG, grasp=replace(CFG.grasp, max_reach_lean=0.0))
+    with pytest.raises(GraspRejected, match="too_far"):
+        plan_grasp(GEOM, upright, gs.position_base, "vertical", gs.yaw, gs.width)
+    plan = plan_grasp(GEOM, CFG, gs.position_base, "vertical", gs.yaw, gs.width)
+    assert plan.reach.pitch < math.pi / 2 - 0.05  # leaning forward
+    prim = h.run(GraspPrimitive(GEOM, CFG, plan), KP, KD, timeout=30.0)
+    assert prim.status is Status.SUCCEEDED, prim.reason
+    assert _held_for(h, name, z0, 3.0) >= 0.10
+    _assert_honest(h)
 
 
 def test_a_spoon_held_at_its_bowl_does_not_creep_round_in_the_fingers():
