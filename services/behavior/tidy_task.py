@@ -1909,18 +1909,22 @@ class TidyTask:
                 return self._give_up_or(Step.APPROACH, f"walk: {out.reason}", Step.APPROACH)
             self._refresh_target()
         table = self._table_of(rec)
+        facing = self._facing(rec, probe.standoff)
         # on a table, navigation may turn the stance about the object off the square one
-        # to keep the trunk clear of a leg (its map holds them): once, then kept
-        turn_free = table is not None and rec.table_heading is None
+        # to keep the trunk clear of a leg (its map holds them): once, then kept. On the
+        # floor a heading chosen clear of other objects may meet a wall or furniture, which
+        # the task does not know of: navigation turns it clear (paper-1: a Rubik's cube by
+        # the kitchen's north-east corner, every trial's approach stalled there 10-30 s)
+        turn_free = (table is not None and rec.table_heading is None) or (
+            table is None and facing is not None
+        )
         aim = self._square_target(rec, rec.position)
         if not probe.horizontal:
             # the arm goes to the probing posture as the robot steps in (1-1.3 s each): it
             # stays above the object, and the approach steers by the track, not the camera.
             # A side probe's posture may lift the nose, which the approach would walk with.
             self._posture(probe.posture, wait=False)
-        out = self.robot.approach(
-            (aim[0], aim[1]), probe.standoff, self._facing(rec, probe.standoff), turn_free=turn_free
-        )
+        out = self.robot.approach((aim[0], aim[1]), probe.standoff, facing, turn_free=turn_free)
         if out.ok and turn_free and table is not None:
             self._keep_turned_stance(rec, table)
         stopped_far = _stopped_off(out.reason) > self.cfg.stopped_far
@@ -1945,10 +1949,12 @@ class TidyTask:
             walk = self._walk_near(rec, turns[min(k, len(turns) - 1) :])
             if walk.ok:
                 self._refresh_target()
+                facing = self._facing(rec, probe.standoff)
                 out = self.robot.approach(
                     (rec.position[0], rec.position[1]),
                     probe.standoff,
-                    self._facing(rec, probe.standoff),
+                    facing,
+                    turn_free=facing is not None,
                 )
         if not out.ok and FOOTPRINT in out.reason and table is not None and rec.end_on:
             # stood at end on, the square stance's slants would show its wide side again

@@ -694,7 +694,10 @@ class NavigationNode(Service):
                 heading = math.atan2(t[1] - odom[1], t[0] - odom[0])
                 heading = self._free_heading(t, float(g.standoff), heading, odom)
             elif g.turn_free:
-                heading = self._free_heading(t, float(g.standoff), heading, odom, nose_in=True)
+                # the nose reaches in under a table top for an object on it, not for one on
+                # the floor beside it (the arm, over the object, would meet the top)
+                on_top = self._in_keepout(t)
+                heading = self._free_heading(t, float(g.standoff), heading, odom, nose_in=on_top)
             job.target = approach_pose(t, float(g.standoff), heading)
             job.total = max(math.hypot(job.target[0] - odom[0], job.target[1] - odom[1]), 1e-3)
             od = self.odom_cache.get()
@@ -758,6 +761,15 @@ class NavigationNode(Service):
             # request, an approach, comes within locomotion's cmd_timeout; else that stops it)
             walking_on = st.state == "reached" and isinstance(g, m.NavigateGoal) and g.pass_through
             self._finish(job, st.state, st.reason, pose, stop=not walking_on)
+
+    def _in_keepout(self, target: tuple[float, float]) -> bool:
+        """Whether odometry point ``target`` lies in a keepout area (a table top)."""
+        if self.costmap is None or self.keepout_only is None:
+            return False
+        in_map = compose(self.map_to_odom, (target[0], target[1], 0.0))
+        geo = self.costmap.geometry
+        (r,), (c,) = geo.to_cell(np.array([in_map[:2]], dtype=float))
+        return bool(geo.inside(r, c) and self.keepout_only[r, c])
 
     def _free_heading(
         self,

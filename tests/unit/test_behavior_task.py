@@ -1649,6 +1649,22 @@ def test_an_approach_goes_round_another_object_on_the_floor_not_over_it() -> Non
     assert _calls(house, "approach")[0][2] is None
 
 
+def test_a_floor_heading_chosen_clear_of_other_objects_may_be_turned_clear_of_furniture():
+    """The task chooses a floor approach's heading by the objects it knows of, not by the
+    walls and furniture, which navigation's map holds: such a heading is sent turnable
+    (``turn_free``). paper-1: a Rubik's cube by the kitchen's north-east corner; the stance
+    at the chosen heading met the wall and every trial's approach stalled 10-30 s there.
+    Facing the object from where the robot comes, navigation turns it anyway."""
+    cube = Thing("rubiks_cube", 5, (2.25, 1.45, 0.03))
+    house, step = _approach_can(cube)
+    assert step == "probe"
+    assert _calls(house, "approach")[0][2] is not None
+    assert house.turn_free_approaches == 1
+    house, _ = _approach_can()
+    assert _calls(house, "approach")[0][2] is None
+    assert house.turn_free_approaches == 0
+
+
 def test_a_table_object_is_approached_square_to_its_table() -> None:
     # a stance turned toward an object near the table's end put a trunk corner against a
     # table leg; square to the table from its stand side, the object straight ahead
