@@ -1913,8 +1913,8 @@ class TidyTask:
         # on a table, navigation may turn the stance about the object off the square one
         # to keep the trunk clear of a leg (its map holds them): once, then kept. On the
         # floor a heading chosen clear of other objects may meet a wall or furniture, which
-        # the task does not know of: navigation turns it clear (such stances were stopped
-        # against furniture, then walked round, 18 times in ten trials of 2026-12-06/07)
+        # the task does not know of: navigation turns it clear (approaches of every kind
+        # stopped against furniture, then walked round, 18 times in ten trials)
         turn_free = (table is not None and rec.table_heading is None) or (
             table is None and facing is not None
         )

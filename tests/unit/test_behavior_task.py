@@ -1652,8 +1652,8 @@ def test_an_approach_goes_round_another_object_on_the_floor_not_over_it() -> Non
 def test_a_floor_heading_chosen_clear_of_other_objects_may_be_turned_clear_of_furniture():
     """The task chooses a floor approach's heading by the objects it knows of, not by the
     walls and furniture, which navigation's map holds: such a heading is sent turnable
-    (``turn_free``): such stances were stopped against furniture and walked round, 18
-    times in ten trials. Facing the object from where the robot comes, navigation turns
+    (``turn_free``): approaches of every kind stopped against furniture and were walked
+    round 18 times in ten trials. Facing the object from where the robot comes, navigation turns
     it anyway."""
     cube = Thing("rubiks_cube", 5, (2.25, 1.45, 0.03))
     house, step = _approach_can(cube)
