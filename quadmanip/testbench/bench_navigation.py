@@ -238,7 +238,12 @@ def part_map(seeds: list[int], log: Any) -> dict[str, Any]:
 
 
 def part_nav(
-    seed: int, n_goals: int, n_approach: int, log: Any, record: str = ""
+    seed: int,
+    n_goals: int,
+    n_approach: int,
+    log: Any,
+    record: str = "",
+    approach_tolerance: tuple[float, float] = (0.01, 0.0175),
 ) -> dict[str, Any]:
     plan = true_floor_plan()
     occ, geo = load_map(resolve_map_path(NavigationConfig().node.map))
@@ -323,7 +328,9 @@ def part_nav(
                 res, reason = _send_and_wait(
                     s, "approach",
                     m.ApproachGoal(stamp=s.now(), target=np.array(target_odom), frame="odom",
-                                   standoff=0.0, heading=heading), 120.0)  # fmt: skip
+                                   standoff=0.0, heading=heading,
+                                   tolerance_xy=approach_tolerance[0],
+                                   tolerance_yaw=approach_tolerance[1]), 120.0)  # fmt: skip
                 s.wait_sim(s.now() + 0.5)
                 end = _gt_pose(s)
                 row = {
@@ -567,6 +574,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="map, nav, obstacles, reloc")  # fmt: skip
     ap.add_argument("--goals", type=int, default=50, help="navigation goals per seed")
     ap.add_argument("--approaches", type=int, default=20, help="approach trials per seed")
+    ap.add_argument("--approach-tolerance", type=float, nargs=2, default=(0.01, 0.0175),
+                    metavar=("XY", "YAW"),
+                    help="the approaches' tolerance, m and rad (the task probes at 0.015 0.03)")  # fmt: skip
     ap.add_argument("--log", default="", help="file for the services' output")
     ap.add_argument("--record", default="", help="save the nav run's scans here (.npz)")
     ap.add_argument("--pictures", default="", help="draw the map and a run into this folder")
@@ -589,7 +599,8 @@ def main(argv: list[str] | None = None) -> int:
         if "map" in parts:
             res["map"] = part_map(seeds, log)
         if "nav" in parts:
-            res["nav"] = part_nav(seeds[0], args.goals, args.approaches, log, args.record)
+            res["nav"] = part_nav(seeds[0], args.goals, args.approaches, log, args.record,
+                                  tuple(args.approach_tolerance))  # fmt: skip
         if "obstacles" in parts:
             res["obstacles"] = part_obstacles(seeds[0], log)
         if "reloc" in parts:
