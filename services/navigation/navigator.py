@@ -5,12 +5,13 @@ A small state machine over the planner (:mod:`.global_planner`), the path follow
 control rate with the robot's map pose. It owns nothing but decisions:
 
 * ``follow``: re-plan every ``replan_period`` and at once when the path ahead crosses a
-  lethal cell (an obstacle that is not in the map); the follower regulates speed near
+  lethal cell (an obstacle that is not in the map) or enters the inscribed zone; the follower regulates speed near
   obstacles and stops when its collision check fires.
 * ``recover`` when the follower is blocked, no plan is found, or the robot makes no
   progress for ``progress_window``: stop and let the obstacle layer see again, back up if
   the space behind is free, turn in place, re-plan. A bounded number of attempts and an
-  overall deadline (``give_up_after``) end it ``blocked`` with the last reason: Nav2's
+  overall deadline (``give_up_after``, stopped once the robot got ``recovered_distance``
+  away) end it ``blocked`` with the last reason: Nav2's
   users most often report recoveries that never trigger or never end.
 * A goal the static map itself cannot reach ends ``no_path`` at once.
 
@@ -23,7 +24,7 @@ import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from quadmanip.services.navigation.costmap import INSCRIBED, LETHAL, Costmap
+from quadmanip.services.navigation.costmap import INSCRIBED, LETHAL, UNKNOWN, Costmap
 from quadmanip.services.navigation.global_planner import (
     START_IN_OBSTACLE,
     PlannerConfig,
@@ -57,6 +58,10 @@ class NavigatorConfig:
     turn_angle: float = math.radians(60)  # per recovery, alternating sides
     turn_rate: float = 0.6  # rad/s
     give_up_after: float = 25.0  # s from the first recovery: then ``blocked``
+    # m: a robot this far from where its last recovery began has got out: the give-up
+    # clock stops (the recoveries still count). A walk out of a pocket of floor objects
+    # and round them, 3 m on and walking freely, was ended "blocked" 25 s after it.
+    recovered_distance: float = 1.0
     # A walk that starts beside furniture (after a grasp or a place at a table) met it
     # with its first turn, and the recovery's wait and turn cost ~3.5 s (four times in
     # seed-114, 2026-12-05): blocked within this long of the start, before any recovery,
@@ -238,7 +243,13 @@ class Navigator:
         ahead = g.path[i0:]
         s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(ahead, axis=0).T))])
         ahead = ahead[s <= self.config.path_check_ahead]
-        return bool(np.any(costmap.cost_at(ahead) == LETHAL))
+        c = costmap.cost_at(ahead)
+        # the inscribed zone counts once the path has left it (a start inside escapes): a
+        # floor object confirmed beside a path planned before it, its disc short of the
+        # path's points, closes it as surely (paper-1's first walk: a baseball 9 cm off;
+        # the path was kept, every command stopped at the zone, three recoveries, 19 s)
+        entered = (c >= INSCRIBED) & (c != UNKNOWN) & (np.cumsum(c < INSCRIBED) > 0)
+        return bool(np.any((c == LETHAL) | entered))
 
     def _end(self, state: str, reason: str, distance: float = math.inf) -> NavStep:
         self.cancel()
@@ -362,6 +373,11 @@ class Navigator:
                 g.path = kept  # still free and about as cheap: keep going the same way
             else:
                 new_path = res.path
+                if blocked:
+                    # the way round is longer than what was left: progress counts along
+                    # it (within the same window: a path re-planned again and again is no
+                    # progress)
+                    g.best_distance = math.inf
         assert g.path is not None
         clearance = float(costmap.clearance(np.array([pose[:2]]))[0])
         self.follower.collision = costmap_collision_check(costmap)
@@ -389,9 +405,17 @@ class Navigator:
             return self._start_recovery(g, now, pose, costmap)
         # ---- progress watchdog (not while the follower settles within the tolerances:
         # a bounded wait to stand and nudges)
-        if cmd.distance_left < g.best_distance - cfg.progress_distance or cmd.mode == "settle":
+        if g.best_distance == math.inf:  # a new way round: measured from here, same clock
+            g.best_distance = cmd.distance_left
+        elif cmd.distance_left < g.best_distance - cfg.progress_distance or cmd.mode == "settle":
             g.best_distance = cmd.distance_left
             g.t_progress = now
+            o = g.recovery_origin
+            if (
+                o is not None
+                and math.hypot(pose[0] - o[0], pose[1] - o[1]) > cfg.recovered_distance
+            ):
+                g.t_first_recovery = g.recovery_origin = None
         elif now - g.t_progress > cfg.progress_window:
             g.last_reason = f"no progress for {cfg.progress_window:.0f} s"
             g.t_progress = now

@@ -700,6 +700,18 @@ class NavigationNode(Service):
                 heading = self._free_heading(t, float(g.standoff), heading, odom, nose_in=on_top)
             job.target = approach_pose(t, float(g.standoff), heading)
             job.total = max(math.hypot(job.target[0] - odom[0], job.target[1] - odom[1]), 1e-3)
+            # what was asked and where it stands, for a reader of the log (a stalled
+            # approach is explained by its stance)
+            self.log.info(
+                "approach stance",
+                target=f"[{t[0]:.2f}, {t[1]:.2f}]",
+                stance=f"[{job.target[0]:.2f}, {job.target[1]:.2f}, {job.target[2]:.2f}]",
+                start=f"[{odom[0]:.2f}, {odom[1]:.2f}, {odom[2]:.2f}]",
+                asked=(
+                    "face_target" if g.face_target else "turn_free" if g.turn_free else "heading"
+                ),
+                frame="odom",
+            )
             od = self.odom_cache.get()
             self.approacher.reset(
                 None

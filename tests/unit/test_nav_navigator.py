@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from quadmanip.services.navigation.costmap import Costmap, CostmapConfig
 from quadmanip.services.navigation.grid import GridGeometry, Pose2, compose, transform_points
-from quadmanip.services.navigation.navigator import Navigator
+from quadmanip.services.navigation.navigator import Navigator, NavigatorConfig
 from quadmanip.services.navigation.path_follower import FollowerConfig
 from quadmanip.services.navigation.scan import lidar_mount, scan_points
 from quadmanip.testbench.floor_plan import FloorPlan, simulate_scan, true_floor_plan
@@ -48,16 +48,18 @@ def _run(
     objects: list[tuple[float, float, float]] | None = None,
     marks: tuple[np.ndarray, float] | None = None,
     t0: float = 0.0,
+    objects_after: float = 0.0,
 ) -> tuple[str, str, Pose2, float, int]:
     """Closed loop from robot time ``t0``: (final state, reason, final pose, time, steps
     touching the world); the navigator is appended to ``navs``; ``objects``: floor
-    objects' discs in the costmap (not in the world: low objects the LiDAR does not see);
+    objects' discs in the costmap (not in the world: low objects the LiDAR does not see),
+    from ``objects_after`` s into the walk (perception confirms them as it goes);
     ``marks``: obstacle-layer points (N, 2) made before the start, and their stamp."""
     rng = np.random.default_rng(seed)
     geo = world.geometry
     cm = Costmap(CostmapConfig(), _occupancy(map_mask), geo)
     static = Costmap(CostmapConfig(), _occupancy(map_mask), geo)
-    if objects:
+    if objects and objects_after <= 0.0:
         cm.set_objects(objects)
     if marks is not None:
         pts, stamp = marks
@@ -80,6 +82,8 @@ def _run(
             r = simulate_scan(world, lp, rng=rng)
             pts = scan_points(t, r, -math.pi, 2 * math.pi / len(r), 0.1, 12.0, mount)
             cm.update_obstacles(transform_points(pose, pts.points), lp, stamp=t)
+        if objects and objects_after > 0.0 and t - t0 >= objects_after and not cm.objects.any():
+            cm.set_objects(objects)
         st = nav.step(t, pose, cm)
         if st.state != "active":
             return st.state, st.reason, pose, t, touching
@@ -191,6 +195,45 @@ def test_floor_objects_that_close_every_way_are_left_out_for_the_walk(plan):
     )
     assert state == "reached", reason
     assert navs[0].notice == ""
+
+
+# paper-1's living-room floor objects as perception saw them (map frame), as the discs the
+# object layer makes of them: marker, cracker box, baseball, coffee can, spoon, lego, cup
+PAPER1_FLOOR = [(2.42, 2.2, 0.12), (2.62, 1.07, 0.155), (2.99, 1.56, 0.087), (3.27, 2.19, 0.1),
+                (2.83, 2.52, 0.13), (2.23, 0.96, 0.08), (3.67, 0.94, 0.09)]  # fmt: skip
+DRAWERS = (8.45, 1.67, 0.0)
+
+
+def test_floor_objects_confirmed_across_the_path_are_walked_round_without_a_recovery(plan):
+    # paper-1's first walk, to the drawers: the path, planned before perception confirmed
+    # the baseball, passed 9 cm from it, short of its disc but across its inscribed zone.
+    # The path was kept (cheaper than the way round), every command stopped at the zone,
+    # and the walk ended "blocked after 3 recoveries" (19 s) by the ball, as it does here
+    # on the code before (measured: blocked at (2.59, 1.60) after 18.8 s)
+    navs: list[Navigator] = []
+    state, reason, pose, t, touching = _run(
+        plan, plan.mask, DRAWERS, start=(2.0, 1.5, 0.2), navs=navs, objects=PAPER1_FLOOR,
+        objects_after=0.1,
+    )  # fmt: skip
+    assert state == "reached", reason
+    assert touching == 0
+    assert not {"wait", "backup", "turn"} & set(navs[0].last_modes), navs[0].last_modes
+    assert t < 20.0, t  # measured 15.9 s
+
+
+def test_a_walk_that_got_out_after_a_recovery_is_not_given_up_on_its_clock(plan):
+    # confirmed with the robot already in the pocket: one recovery gets it out, and the
+    # walk round and through the doorway (then 3 m on, walking freely) was ended
+    # "blocked" 25 s after that recovery (measured: at (5.23, 1.95)); its detour, longer
+    # than what the old path had left, also counted as no progress (two more recoveries)
+    navs: list[Navigator] = []
+    state, reason, pose, t, touching = _run(
+        plan, plan.mask, DRAWERS, start=(2.3, 1.55, 0.2), navs=navs, objects=PAPER1_FLOOR,
+        objects_after=1.0,
+    )  # fmt: skip
+    assert state == "reached", reason
+    assert touching == 0
+    assert navs[0].last_modes.get("wait", 0.0) <= NavigatorConfig().recovery_wait + 0.1
 
 
 def test_passes_a_box_that_is_not_in_the_map(plan):
