@@ -114,15 +114,19 @@ def free_approach_heading(
 ) -> float | None:
     """The heading nearest ``heading`` (tried in the order ``0, *turns`` about the
     target) whose stance, and the straight way from ``start`` to it, ``free(pose,
-    margin)`` accepts: ``heading`` itself with ``keep_margin`` about the trunk, a turned
-    one with ``turn_margin`` (a turned stance is chosen clear, not grazing: the approach
-    does not walk its straight line exactly); failing that, the first turned one free
-    with ``keep_margin`` (grazing beats a stance known to meet furniture). The way is
+    margin)`` accepts with ``turn_margin`` about the trunk (a stance is chosen clear, not
+    grazing: the approach does not walk its straight line exactly); failing that, the
+    first free with ``keep_margin``, ``heading`` itself first (grazing beats a stance
+    known to meet furniture). Until 2026-12-07 ``heading`` itself needed only
+    ``keep_margin``: paper-1's Rubik's cube, on the floor 26 cm from the deposit table's
+    legs, was faced from a stance 3-10 cm from a leg, and five approaches in a row ended
+    "an obstacle touches the footprint" (the guard's 3 cm). The way is
     checked every ``step`` m from halfway on (near the start the robot stands where it
     already stands). None: no such heading; the caller keeps ``heading`` and the
     approach's guard."""
-    tries = [(0.0, keep_margin), *((t, turn_margin) for t in turns)]
-    tries += [(t, keep_margin) for t in turns if turn_margin > keep_margin]
+    tries = [(0.0, turn_margin), *((t, turn_margin) for t in turns)]
+    if turn_margin > keep_margin:
+        tries += [(0.0, keep_margin), *((t, keep_margin) for t in turns)]
     for turn, margin in tries:
         h = heading if turn == 0.0 else float(wrap(heading + turn))
         stance = approach_pose(target_xy, standoff, h)
