@@ -118,9 +118,9 @@ def free_approach_heading(
     grazing: the approach does not walk its straight line exactly); failing that, the
     first free with ``keep_margin``, ``heading`` itself first (grazing beats a stance
     known to meet furniture). Until 2026-12-07 ``heading`` itself needed only
-    ``keep_margin``: paper-1's Rubik's cube, on the floor 26 cm from the deposit table's
-    legs, was faced from a stance 3-10 cm from a leg, and five approaches in a row ended
-    "an obstacle touches the footprint" (the guard's 3 cm). The way is
+    ``keep_margin``: paper-1's Rubik's cube lies on the floor 26 cm from the deposit
+    table's legs; facing it from 70-80 deg the stance is clear by 3 cm but not 10, and
+    eight approaches in one trial ended "an obstacle touches the footprint". The way is
     checked every ``step`` m from halfway on (near the start the robot stands where it
     already stands). None: no such heading; the caller keeps ``heading`` and the
     approach's guard."""

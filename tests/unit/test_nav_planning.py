@@ -884,10 +884,10 @@ def test_a_table_stance_by_a_leg_turns_about_the_object_nose_under_the_top():
 
 def test_a_floor_stance_grazing_a_table_leg_turns_clear_of_it():
     # paper-1 (2026-12-07): the Rubik's cube on the kitchen floor, 26 cm east of the
-    # deposit table's legs. Faced from the south-west, the stance stood 3-10 cm from a
-    # leg (clear by the approach guard's 3 cm, so it was kept), and approach after
-    # approach stopped "an obstacle touches the footprint". A stance clear by the turned
-    # stances' margin is preferred to the asked heading grazing
+    # deposit table's legs. Faced from the south (82 deg here) the stance is clear of a
+    # leg by the approach guard's 3 cm but not by 10 cm, so it was kept; in the trial
+    # approach after approach stopped "an obstacle touches the footprint". A stance clear
+    # by the turned stances' margin is now preferred to the asked heading grazing
     from quadmanip.common.config import load_config
     from quadmanip.services.navigation.approach import stance_clear
     from quadmanip.services.navigation.config import NavigationConfig
