@@ -836,14 +836,10 @@ def test_an_approach_stance_against_furniture_is_turned_about_the_target():
     assert free_approach_heading(always, start, target, standoff, 0.3, turns, keep, wide) == 0.3
 
 
-def test_a_table_stance_by_a_leg_turns_about_the_object_nose_under_the_top():
-    # paper-5 (2026-12-06): a mug 13 cm in from the kitchen table's west end, 20 cm from
-    # its edge. Square to the table the trunk stands on the leg at the corner; the keepout
-    # of the table (its top lies above the LiDAR) holds every stance near it, so the
-    # turned stances were never tried. With the nose allowed in under the top (not the
-    # trunk's middle) a stance turned toward the table's middle is clear of the leg.
+def _house_costmap():
+    """(navigation config, costmap of the committed house map with its keepouts, the
+    map's occupancy, the places), as the node builds them."""
     from quadmanip.common.config import load_config
-    from quadmanip.services.navigation.approach import stance_clear
     from quadmanip.services.navigation.config import NavigationConfig
     from quadmanip.services.navigation.costmap import with_keepouts
     from quadmanip.services.navigation.map_io import load_map
@@ -855,7 +851,18 @@ def test_a_table_stance_by_a_leg_turns_about_the_object_nose_under_the_top():
     occ, geo = load_map(path)
     places = load_places(places_path_for(path))
     static = with_keepouts(occ, geo, [p.area for p in places.values() if p.keepout])
-    cm = Costmap(nav.costmap, static, geo)
+    return nav, Costmap(nav.costmap, static, geo), occ, places
+
+
+def test_a_table_stance_by_a_leg_turns_about_the_object_nose_under_the_top():
+    # paper-5 (2026-12-06): a mug 13 cm in from the kitchen table's west end, 20 cm from
+    # its edge. Square to the table the trunk stands on the leg at the corner; the keepout
+    # of the table (its top lies above the LiDAR) holds every stance near it, so the
+    # turned stances were never tried. With the nose allowed in under the top (not the
+    # trunk's middle) a stance turned toward the table's middle is clear of the leg.
+    from quadmanip.services.navigation.approach import stance_clear
+
+    nav, cm, occ, places = _house_costmap()
     under_top = cm.static_lethal & ~(occ >= nav.costmap.occupied_threshold)
     table = places["kitchen_table"]
     mug, square, standoff = (6.881, 2.005), table.stand[2], 0.36
@@ -888,20 +895,9 @@ def test_a_floor_stance_grazing_a_table_leg_turns_clear_of_it():
     # leg by the approach guard's 3 cm but not by 10 cm, so it was kept; in the trial
     # approach after approach stopped "an obstacle touches the footprint". A stance clear
     # by the turned stances' margin is now preferred to the asked heading grazing
-    from quadmanip.common.config import load_config
     from quadmanip.services.navigation.approach import stance_clear
-    from quadmanip.services.navigation.config import NavigationConfig
-    from quadmanip.services.navigation.costmap import with_keepouts
-    from quadmanip.services.navigation.map_io import load_map
-    from quadmanip.services.navigation.node import resolve_map_path
-    from quadmanip.services.navigation.places import load_places, places_path_for
 
-    nav = load_config(NavigationConfig, "navigation")
-    path = resolve_map_path(nav.node.map)
-    occ, geo = load_map(path)
-    places = load_places(places_path_for(path))
-    static = with_keepouts(occ, geo, [p.area for p in places.values() if p.keepout])
-    cm = Costmap(nav.costmap, static, geo)
+    nav, cm, occ, places = _house_costmap()
     cube, standoff, start = (8.158, 3.592), 0.36, (8.0, 2.5, 1.4)
     lethal = cm.lethal_except_near(cube, nav.objects.max_radius + 0.05)
     guard, margin = nav.node.approach_guard, nav.approach.free_margin
