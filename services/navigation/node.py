@@ -711,6 +711,9 @@ class NavigationNode(Service):
                     "face_target" if g.face_target else "turn_free" if g.turn_free else "heading"
                 ),
                 frame="odom",
+                map_stance="[{:.2f}, {:.2f}, {:.2f}]".format(
+                    *compose(self.map_to_odom, job.target)
+                ),
             )
             od = self.odom_cache.get()
             self.approacher.reset(
