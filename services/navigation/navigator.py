@@ -5,8 +5,8 @@ A small state machine over the planner (:mod:`.global_planner`), the path follow
 control rate with the robot's map pose. It owns nothing but decisions:
 
 * ``follow``: re-plan every ``replan_period`` and at once when the path ahead crosses a
-  lethal cell (an obstacle that is not in the map) or enters the inscribed zone; the follower regulates speed near
-  obstacles and stops when its collision check fires.
+  lethal cell (an obstacle that is not in the map) or enters the inscribed zone; the
+  follower regulates speed near obstacles and stops when its collision check fires.
 * ``recover`` when the follower is blocked, no plan is found, or the robot makes no
   progress for ``progress_window``: stop and let the obstacle layer see again, back up if
   the space behind is free, turn in place, re-plan. A bounded number of attempts and an
