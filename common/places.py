@@ -51,6 +51,7 @@ from pathlib import Path
 
 __all__ = [
     "KINDS",
+    "TABLE_KINDS",
     "Place",
     "PlacesError",
     "Pose2",
@@ -70,6 +71,7 @@ KINDS: tuple[str, ...] = (
     "cabinet",
     "drawer",
 )
+TABLE_KINDS: tuple[str, ...] = ("search_table", "table")  # a top objects may lie on
 AREA_FLAGS: tuple[str, ...] = ("keepout", "moves")  # what a place may say of its area
 
 

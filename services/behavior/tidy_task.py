@@ -78,7 +78,7 @@ from enum import Enum
 from typing import Literal
 
 from quadmanip.common.object_catalogue import Catalogue
-from quadmanip.common.places import Place
+from quadmanip.common.places import TABLE_KINDS, Place
 from quadmanip.common.reasons import parse_narrow_side, parse_reach_band, parse_refused_class
 from quadmanip.services.behavior.coverage import (
     SearchConfig,
@@ -1196,7 +1196,7 @@ class TidyTask:
     def _tables(self) -> list[Place]:
         """Every table objects may lie on: the search tables, and those not searched (the
         deposit table, where an object slipped from the fingers lands)."""
-        return [p for p in self.places.values() if p.kind in ("search_table", "table")]
+        return [p for p in self.places.values() if p.kind in TABLE_KINDS]
 
     def _in_zones(self, p: Point3) -> bool:
         """Whether ``p`` lies in a zone the task searches (or a look after a drop), within

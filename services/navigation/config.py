@@ -40,6 +40,10 @@ class NodeConfig:
     costmap_margin: float = 1.0  # m around the known area of the SLAM map
     approach_timeout: float = 30.0  # s (robot time)
     approach_guard: float = 0.03  # m: scan points this close to the trunk stop an approach
+    # m: an approach that would walk at least this far to a stance (its own heading and no
+    # turned one free) whose trunk overlaps the map's furniture ends before it sets off
+    # (``STANCE_MEETS_FURNITURE``); a shorter step in goes on, its guard stops it if it must
+    meets_furniture_from: float = 0.2
     # scans are used only while the robot stands or walks upright (not while it stands up)
     min_base_height: float = 0.22  # m, odometry's base height
     max_tilt: float = 0.2  # rad

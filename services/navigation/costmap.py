@@ -41,6 +41,7 @@ __all__ = [
     "UNKNOWN",
     "Costmap",
     "CostmapConfig",
+    "area_mask",
     "with_keepouts",
 ]
 
@@ -73,6 +74,24 @@ class CostmapConfig:
     footprint_margin: float = 0.06  # m: feet stick out ~0.05 m sideways, plus slack
 
 
+def area_mask(
+    geometry: GridGeometry, areas: Sequence[tuple[float, float, float, float]]
+) -> np.ndarray:
+    """The grid's cells that an area (x_min, y_min, x_max, y_max, map frame) overlaps."""
+    out = np.zeros(geometry.shape, dtype=bool)
+    res = geometry.resolution
+    for x0, y0, x1, y1 in areas:
+        if not (x1 > x0 and y1 > y0):
+            raise ValueError(f"area {(x0, y0, x1, y1)}: want x_min < x_max, y_min < y_max")
+        c0 = max(int(math.floor((x0 - geometry.origin_x) / res)), 0)
+        c1 = min(int(math.ceil((x1 - geometry.origin_x) / res)), geometry.width)
+        r0 = max(int(math.floor((y0 - geometry.origin_y) / res)), 0)
+        r1 = min(int(math.ceil((y1 - geometry.origin_y) / res)), geometry.height)
+        if c1 > c0 and r1 > r0:
+            out[r0:r1, c0:c1] = True
+    return out
+
+
 def with_keepouts(
     occupancy: np.ndarray,
     geometry: GridGeometry,
@@ -84,16 +103,7 @@ def with_keepouts(
     the scan (the places file's ``keepout``; paper-4: every walk from the kitchen
     table's far side to the boxes was planned between its legs, under the top)."""
     out = np.array(occupancy, copy=True)
-    res = geometry.resolution
-    for x0, y0, x1, y1 in areas:
-        if not (x1 > x0 and y1 > y0):
-            raise ValueError(f"keepout area {(x0, y0, x1, y1)}: want x_min < x_max, y_min < y_max")
-        c0 = max(int(math.floor((x0 - geometry.origin_x) / res)), 0)
-        c1 = min(int(math.ceil((x1 - geometry.origin_x) / res)), geometry.width)
-        r0 = max(int(math.floor((y0 - geometry.origin_y) / res)), 0)
-        r1 = min(int(math.ceil((y1 - geometry.origin_y) / res)), geometry.height)
-        if c1 > c0 and r1 > r0:
-            out[r0:r1, c0:c1] = 100
+    out[area_mask(geometry, areas)] = 100
     return out
 
 

@@ -48,7 +48,7 @@ from quadmanip.services.navigation.approach import (
     stance_clear,
 )
 from quadmanip.services.navigation.config import NavigationConfig
-from quadmanip.services.navigation.costmap import INSCRIBED, Costmap, with_keepouts
+from quadmanip.services.navigation.costmap import INSCRIBED, Costmap, area_mask, with_keepouts
 from quadmanip.services.navigation.frontier import find_frontiers
 from quadmanip.services.navigation.global_planner import plan_path
 from quadmanip.services.navigation.grid import (
@@ -63,7 +63,12 @@ from quadmanip.services.navigation.map_io import load_map, load_surface
 from quadmanip.services.navigation.navigator import Navigator
 from quadmanip.services.navigation.object_layer import floor_obstacles
 from quadmanip.services.navigation.odom_watch import odometry_jumped
-from quadmanip.services.navigation.places import Place, load_places, places_path_for
+from quadmanip.services.navigation.places import (
+    TABLE_KINDS,
+    Place,
+    load_places,
+    places_path_for,
+)
 from quadmanip.services.navigation.pose_history import PoseHistory
 from quadmanip.services.navigation.scan import (
     ScanPoints,
@@ -75,7 +80,14 @@ from quadmanip.services.navigation.scan import (
 from quadmanip.services.navigation.scan_anchor import ScanAnchor
 from quadmanip.services.navigation.slam import OnlineSlam
 
-__all__ = ["NavigationNode", "main", "resolve_map_path"]
+__all__ = ["STANCE_MEETS_FURNITURE", "NavigationNode", "main", "resolve_map_path"]
+
+# an approach ended before it set off: its stance meets furniture (ApproachGoal's face_target
+# and turn_free); it says "touches the footprint", as the stop by the approach's guard does
+STANCE_MEETS_FURNITURE = (
+    "blocked: an obstacle touches the footprint at the stance asked, and no stance turned "
+    "about the target is clear from here"
+)
 
 
 def resolve_map_path(name: str) -> Path:
@@ -167,6 +179,7 @@ class NavigationNode(Service):
         self.amcl: ParticleFilter | None = None
         self.map_to_odom: Pose2 = (0.0, 0.0, 0.0)
         self.keepout_only: np.ndarray | None = None
+        self.table_tops: np.ndarray | None = None
         self.walk_exempt: set[int] = set()  # tracks near where the current walk began
         if nc.mode == "mapping":
             self.slam = OnlineSlam(cfg.slam)
@@ -197,6 +210,12 @@ class NavigationNode(Service):
             # stance that reaches in under the top with its nose (ApproachGoal.turn_free)
             self.keepout_only = self.costmap.static_lethal & ~(
                 self.map_grid >= cfg.costmap.occupied_threshold
+            )
+            # every table's top (the deposit table's too, which is no keepout: its boxes'
+            # stances come within 1 cm of its edge): the LiDAR passes under a top, the
+            # trunk's LiDAR housing and the arm do not, so an approach stance keeps out
+            self.table_tops = area_mask(
+                self.map_geo, [p.area for p in self.places.values() if p.kind in TABLE_KINDS]
             )
             self.log.info("map loaded", map=str(path), places=len(self.places),
                           keepouts=len(keepouts),
@@ -690,14 +709,17 @@ class NavigationNode(Service):
             if g.frame == "base":
                 t = compose(odom, (t[0], t[1], 0.0))[:2]
                 heading += odom[2]
+            meets = False
             if g.face_target:
                 heading = math.atan2(t[1] - odom[1], t[0] - odom[0])
-                heading = self._free_heading(t, float(g.standoff), heading, odom)
+                heading, meets = self._free_heading(t, float(g.standoff), heading, odom)
             elif g.turn_free:
                 # the nose reaches in under a table top for an object on it, not for one on
                 # the floor beside it (the arm, over the object, would meet the top)
                 on_top = self._in_keepout(t)
-                heading = self._free_heading(t, float(g.standoff), heading, odom, nose_in=on_top)
+                heading, meets = self._free_heading(
+                    t, float(g.standoff), heading, odom, nose_in=on_top
+                )
             job.target = approach_pose(t, float(g.standoff), heading)
             job.total = max(math.hypot(job.target[0] - odom[0], job.target[1] - odom[1]), 1e-3)
             # what was asked and where it stands, for a reader of the log (a stalled
@@ -715,6 +737,12 @@ class NavigationNode(Service):
                     *compose(self.map_to_odom, job.target)
                 ),
             )
+            if meets:
+                # the approach would stop against it (paper-1's Rubik's cube, beside the
+                # deposit table's leg and under its top: 20 s to "no progress", in every
+                # run); the task walks to another side of the object and approaches again
+                self._finish(job, "blocked", STANCE_MEETS_FURNITURE, odom)
+                return False
             od = self.odom_cache.get()
             self.approacher.reset(
                 None
@@ -793,18 +821,27 @@ class NavigationNode(Service):
         heading: float,
         odom: Pose2,
         nose_in: bool = False,
-    ) -> float:
+    ) -> tuple[float, bool]:
         """An approach's heading, turned about the target when at ``heading`` the stance
-        (or the way to it) meets an obstacle of the costmap within the approach's guard
-        (``ApproachConfig.free_turns``; the objects layer counts, but not the target's own
-        disc). ``nose_in``: keepout areas hold only the trunk's middle out, the rest may
-        reach under a table top (paper-5: a mug 13 cm in from the kitchen table's end;
-        square to the table the trunk met a leg, and twelve approaches stopped)."""
+        (or the way to it) meets an obstacle of the costmap or a table's top within the
+        approach's guard (``ApproachConfig.free_turns``; the objects layer counts, but not
+        the target's own disc), and whether the stance meets the furniture: no heading is
+        free, the stance is ``meets_furniture_from`` away or more, and the trunk itself at
+        ``heading`` overlaps the static map (walls, legs, keepouts; no margin: not a graze
+        but a stop; the deposit table's top is left out: rounded out to whole cells it
+        reaches 4 cm past its edge, where a stance may stand). ``nose_in``: keepout areas
+        hold only the
+        trunk's middle out, the rest may reach under a table top (paper-5: a mug 13 cm in
+        from the kitchen table's end; square to the table the trunk met a leg, and twelve
+        approaches stopped); such a stance is never said to meet the furniture."""
         cm, turns = self.costmap, self.config.approach.free_turns
         if cm is None or not turns:
-            return heading
+            return heading, False
         in_map = compose(self.map_to_odom, (target[0], target[1], 0.0))
         lethal = cm.lethal_except_near(in_map[:2], self.config.objects.max_radius + 0.05)
+        tops = self.table_tops
+        if tops is not None:
+            lethal = lethal | tops
         keepout = self.keepout_only if nose_in else None
         guard = self.config.node.approach_guard
 
@@ -815,14 +852,21 @@ class NavigationNode(Service):
             free, odom, target, standoff, heading, turns, guard, self.config.approach.free_margin
         )
         if turned is None:
-            return heading
+            stance = approach_pose(target, standoff, heading)
+            far = math.hypot(stance[0] - odom[0], stance[1] - odom[1])
+            meets = (
+                not nose_in
+                and far >= self.config.node.meets_furniture_from
+                and not stance_clear(cm, cm.static_lethal, compose(self.map_to_odom, stance), 0.0)
+            )
+            return heading, meets
         if turned != heading:  # (not turned: the very heading it was given)
             self.log.info(
                 "approach stance turned",
                 by_deg=round(math.degrees(wrap(turned - heading)), 1),
                 why="at the heading asked the stance meets an obstacle",
             )
-        return turned
+        return turned, False
 
     def _step_approach(self, job: _Job, now: float, odom: Pose2) -> None:
         g = job.goal

@@ -3,6 +3,7 @@ service, :mod:`quadmanip.common.places`; re-exported here for navigation's modul
 
 from quadmanip.common.places import (
     KINDS,
+    TABLE_KINDS,
     Place,
     PlacesError,
     load_places,
@@ -10,4 +11,12 @@ from quadmanip.common.places import (
     save_places,
 )
 
-__all__ = ["KINDS", "Place", "PlacesError", "load_places", "places_path_for", "save_places"]
+__all__ = [
+    "KINDS",
+    "TABLE_KINDS",
+    "Place",
+    "PlacesError",
+    "load_places",
+    "places_path_for",
+    "save_places",
+]

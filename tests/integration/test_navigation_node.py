@@ -199,6 +199,27 @@ def test_a_blocked_approach_logs_its_nearest_lidar_return(nav):
           "no nearest return in the log", (proc,))  # fmt: skip
 
 
+def test_an_approach_whose_every_stance_meets_the_walls_ends_before_it_sets_off(nav):
+    # paper-1 (2026-12-07): facing the Rubik's cube from where the robot stood, the
+    # stance stood on the deposit table's leg and no turned one was clear; the approach
+    # pushed against the table for 20 s. A stance that meets the map's furniture, 0.2 m
+    # away or more, ends the approach at once, "touches the footprint": the task walks to
+    # another side. Here: a target in the living room's south-west corner, 8 cm from both
+    # walls, to stand 0.15 m from, facing it from the start
+    bus, robot, proc, _ = nav
+    before = robot.pose
+    goal = m.ApproachGoal(stamp=0.0, target=np.array(robot.odom_of((0.08, 0.08, 0.0))[:2]),
+                          frame="odom", standoff=0.15, face_target=True)  # fmt: skip
+    h = _send(bus, "approach", goal)
+    assert h.accepted, h.reason
+    r = _result(h, proc, 60.0)
+    assert r.status == "failed" and "touches the footprint" in r.reason, r.reason
+    assert "no stance turned about the target is clear" in r.reason
+    assert r.result.outcome == "blocked"
+    x, y, _ = robot.pose
+    assert math.hypot(x - before[0], y - before[1]) < 0.03  # it did not set off
+
+
 @pytest.mark.parametrize("asked", ["face_target", "turn_free"])
 def test_an_approach_whose_stance_meets_furniture_is_turned_about_the_target(nav, asked):
     # seed-106 (2026-12-05): approaches facing a floor object from where the robot stood

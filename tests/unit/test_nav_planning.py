@@ -915,6 +915,76 @@ def test_a_floor_stance_grazing_a_table_leg_turns_clear_of_it():
     assert abs(wrap(h - asked)) <= 0.7  # the nearest clear turn (measured: +20 deg)
 
 
+def _node_on_the_house_map():
+    """A navigation node (no transport) holding the committed house map as it loads it,
+    odometry = map."""
+    from types import SimpleNamespace
+
+    from quadmanip.services.navigation.costmap import area_mask
+    from quadmanip.services.navigation.node import NavigationNode
+    from quadmanip.services.navigation.places import TABLE_KINDS
+
+    nav, cm, occ, places = _house_costmap()
+    node = NavigationNode.__new__(NavigationNode)
+    node.config, node.costmap, node.map_to_odom = nav, cm, (0.0, 0.0, 0.0)
+    node.keepout_only = cm.static_lethal & ~(occ >= nav.costmap.occupied_threshold)
+    tops = [p.area for p in places.values() if p.kind in TABLE_KINDS]
+    node.table_tops = area_mask(cm.geometry, tops)
+    node.log = SimpleNamespace(info=lambda *a, **k: None)
+    return node
+
+
+def test_an_approach_whose_stance_meets_furniture_from_where_it_stands_ends_before_it_sets_off():
+    # paper-1 (2026-12-07, every run): after a place at the deposit table the robot stood
+    # at (7.61, 3.15) facing north, the Rubik's cube 0.6 m east on the floor beside the
+    # table's leg. Facing the cube, the trunk stood on the leg; no stance turned about the
+    # cube was clear on the way from there, so the asked one was kept: the approach pushed
+    # against the leg and the top for 20 s until "no progress", then the task walked to
+    # another side. Now it ends at once, so the task walks there at once.
+    node = _node_on_the_house_map()
+    cube, standoff, start = (8.158, 3.592), 0.356, (7.61, 3.15, math.pi / 2)
+    asked = math.atan2(cube[1] - start[1], cube[0] - start[0])  # 38 deg
+    assert node._free_heading(cube, standoff, asked, start) == (asked, True)
+    # from the south, where the task's walk brought it: a turned stance, set off to
+    south = (8.0, 2.5, 1.4)
+    asked = math.atan2(cube[1] - south[1], cube[0] - south[0])
+    heading, meets = node._free_heading(cube, standoff, asked, south)
+    assert not meets and heading != asked
+    # a step in (the stance within 0.2 m) goes on: its guard stops it if it must. (One
+    # turn, as blocked: the step in is 0.1 m behind the stance facing 38 deg, 0.2 m more
+    # from the start)
+    cfg = node.config
+    node.config = replace(cfg, approach=replace(cfg.approach, free_turns=(0.02,)))
+    facing = math.atan2(cube[1] - start[1], cube[0] - start[0])
+    near = approach_pose(cube, standoff + 0.1, facing)
+    assert node._free_heading(cube, standoff, facing, near) == (facing, False)
+    back = approach_pose(cube, standoff + 0.2, facing)
+    assert node._free_heading(cube, standoff, facing, back) == (facing, True)
+    # in under a keepout table's top with the nose (an object on it): never "meets"
+    assert node._free_heading(cube, standoff, facing, start, nose_in=True) == (facing, False)
+
+
+def test_an_approach_stance_keeps_its_trunk_from_under_the_deposit_tables_top():
+    # the deposit table is no keepout (its boxes' stances come within 1 cm of its edge),
+    # so only its legs were in the stances' costmap; the LiDAR housing and the arm stand
+    # above its top's underside. A floor object 0.2 m south of its middle, faced from the
+    # north-west: a stance between the legs, the trunk under the top, is not taken.
+    from quadmanip.services.navigation.approach import stance_clear
+
+    node = _node_on_the_house_map()
+    cm = node.costmap
+    thing, standoff, asked = (7.0, 3.25), 0.36, -math.pi / 4
+    under = approach_pose(thing, standoff, asked)
+    assert stance_clear(cm, cm.lethal, under, node.config.node.approach_guard)  # legs only
+    assert not stance_clear(cm, cm.lethal | node.table_tops, under, 0.0)
+    heading, meets = node._free_heading(thing, standoff, asked, (6.3, 2.8, 0.0))
+    assert not meets and heading != asked
+    x, y, h = approach_pose(thing, standoff, heading)
+    half_length, half_width = 0.5 * cm.config.footprint_length, 0.5 * cm.config.footprint_width
+    north = y + half_length * abs(math.sin(h)) + half_width * abs(math.cos(h))
+    assert north < 3.45, (math.degrees(h), north)  # the trunk south of the top's edge
+
+
 def test_a_walk_keeps_the_floor_objects_it_passes_but_not_those_where_it_began():
     # paper-1 (2026-12-06): the node left out every track within 0.6 m of the robot at
     # each scan (the rule for the object it handles or holds): the disc of a standing
