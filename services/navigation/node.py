@@ -61,7 +61,7 @@ from quadmanip.services.navigation.grid import (
 )
 from quadmanip.services.navigation.map_io import load_map, load_surface
 from quadmanip.services.navigation.navigator import Navigator
-from quadmanip.services.navigation.object_layer import floor_obstacles
+from quadmanip.services.navigation.object_layer import floor_obstacles, handled
 from quadmanip.services.navigation.odom_watch import odometry_jumped
 from quadmanip.services.navigation.places import (
     TABLE_KINDS,
@@ -415,9 +415,9 @@ class NavigationNode(Service):
             self.costmap.update_obstacles(
                 transform_points(base, pts.points), sensor, stamp=float(scan.stamp)
             )
-            self._update_objects(base)
+            self._update_objects()
 
-    def _update_objects(self, base: Pose2) -> None:
+    def _update_objects(self) -> None:
         """The costmap's object layer from perception's latest memory (object_layer's
         docstring: the floor objects under the LiDAR's plane), in this node's map frame."""
         tracks = self.objects_cache.get()
@@ -429,8 +429,9 @@ class NavigationNode(Service):
         c = np.asarray(tracks.centroids, dtype=float).reshape(-1, 3)
         xy = transform_points(self.map_to_odom, c[:, :2]) if len(c) else c[:, :2]
         goal = self.navigator.goal.pose[:2] if self.navigator.goal is not None else None
-        # walking: the tracks near the robot where the walk began are what it handles or
-        # holds; every other one stays an obstacle however near it passes (object_layer)
+        # walking: what the robot handled or held where the walk began is none; every other
+        # track stays an obstacle however near it passes. Standing or approaching: every
+        # track is one (an approach's stance check leaves its own target out)
         walking = goal is not None
         exempt = np.isin(np.asarray(tracks.ids), list(self.walk_exempt)) if walking else None
         discs = floor_obstacles(
@@ -438,7 +439,7 @@ class NavigationNode(Service):
             tracks.extents,
             tracks.confirmed,
             self.floor_zones,
-            None if walking else (base[0], base[1]),
+            None,
             None if goal is None else (float(goal[0]), float(goal[1])),
             self.config.objects,
             exempt,
@@ -446,14 +447,14 @@ class NavigationNode(Service):
         self.costmap.set_objects(discs)
 
     def _tracks_near(self, pose: Pose2) -> set[int]:
-        """Ids of perception's tracks within the object layer's ``near_robot`` of ``pose``
-        (map frame)."""
+        """Ids of perception's tracks that a robot at ``pose`` (map frame) handles or holds
+        (:func:`object_layer.handled`)."""
         tracks = self.objects_cache.get()
         if tracks is None or not len(tracks.ids):
             return set()
         c = np.asarray(tracks.centroids, dtype=float).reshape(-1, 3)
         xy = transform_points(self.map_to_odom, c[:, :2])
-        near = np.hypot(xy[:, 0] - pose[0], xy[:, 1] - pose[1]) < self.config.objects.near_robot
+        near = handled(xy, pose, self.config.objects)
         return {int(i) for i in np.asarray(tracks.ids)[near]}
 
     def _build_mapping_costmap(self) -> None:
@@ -773,6 +774,7 @@ class NavigationNode(Service):
             outcome = "no_path" if why.startswith("no_path") else "rejected"
             self._finish(job, outcome, why, pose)
             return False
+        self._update_objects()  # the walk's layer (what it handles exempt) from its first step
         job.total = max(math.hypot(target[0] - pose[0], target[1] - pose[1]), 1e-3)
         return True
 

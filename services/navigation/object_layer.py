@@ -13,12 +13,15 @@ object instead.
 Which tracks become discs (:func:`floor_obstacles`): confirmed, centroid lower than
 ``max_height`` (a table's objects lie under no path), inside one of the floor zones where
 objects are searched (false detections elsewhere, e.g. in a doorway, would close it), and
-not near the robot or the walk's goal (the object it handles, holds or walks up to).
-During a walk "near the robot" means near where the walk started (the node passes those
-tracks as ``exempt`` and no ``robot_xy``): an object the walk passes is an obstacle all
-the way. Tested against the robot's pose at every scan, the disc of a standing cracker
-box vanished as the robot came within 0.6 m of it, the path was planned through it again
-and the trunk knocked it over (paper-1, 2026-12-06; seed-118 lost its cracker box so).
+not near the walk's goal (what it walks up to) nor what the robot handles or holds where
+a walk begins (:func:`handled`; the node passes those tracks as ``exempt``): an object the
+walk passes is an obstacle all the way. Tested against the robot's pose at every scan,
+the disc of a standing cracker box vanished as the robot came within 0.6 m of it, the
+path was planned through it again and the trunk knocked it over (paper-1, 2026-12-06;
+seed-118 lost its cracker box so). Standing or in an approach every track is a disc (an
+approach's stance check leaves its own target out): until 2026-12-07 those within 0.6 m
+of the robot were none, and a stance's way past a cracker box standing 0.58 m from the
+robot was taken as clear (paper-4).
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Disc", "ObjectLayerConfig", "floor_obstacles"]
+__all__ = ["Disc", "ObjectLayerConfig", "floor_obstacles", "handled"]
 
 Disc = tuple[float, float, float]  # x, y, radius (m, map frame)
 
@@ -43,7 +46,15 @@ class ObjectLayerConfig:
     margin: float = 0.05  # m: added to half the object's larger horizontal extent
     min_radius: float = 0.05  # m
     max_radius: float = 0.2  # m: a larger extent is clipped (a track that merged two views)
-    near_robot: float = 0.6  # m: tracks this near the robot are what it handles or holds
+    # what the robot handles or holds where a walk begins (:func:`handled`): a track this
+    # near and within near_bearing of its heading (the object it probed, failed to grasp or
+    # holds lies ahead, in the gripper's reach: 0.35-0.51 m, a few degrees off), or one
+    # this near the trunk whatever the bearing. A neighbour is not: paper-4 (2026-12-07), a
+    # cracker box 0.53 m away, 46 deg to the side of the padlock just grasped, was left
+    # out of the walk that turned away from it
+    near_robot: float = 0.6  # m
+    near_bearing: float = 0.5  # rad
+    near_trunk: float = 0.3  # m
     near_goal: float = 0.5  # m: ... or what a walk goes up to (walks end 0.6-1.0 m short)
     zone_margin: float = 0.3  # m: around the floor zones
 
@@ -85,3 +96,13 @@ def floor_obstacles(
         r = 0.5 * float(max(ext[0], ext[1])) + cfg.margin
         out.append((float(x), float(y), min(max(r, cfg.min_radius), cfg.max_radius)))
     return out
+
+
+def handled(xy: np.ndarray, pose: tuple[float, float, float], cfg: ObjectLayerConfig) -> np.ndarray:
+    """Which of the tracks at map-frame ``xy`` (N, 2) a robot at ``pose`` (x, y, yaw)
+    handles or holds (the config's ``near_robot``, ``near_bearing``, ``near_trunk``)."""
+    p = np.asarray(xy, dtype=float).reshape(-1, 2)
+    dx, dy = p[:, 0] - pose[0], p[:, 1] - pose[1]
+    dist = np.hypot(dx, dy)
+    off = np.abs(np.angle(np.exp(1j * (np.arctan2(dy, dx) - pose[2]))))
+    return (dist < cfg.near_trunk) | ((dist < cfg.near_robot) & (off <= cfg.near_bearing))
