@@ -163,6 +163,9 @@ REFUSED_GOAL = "rejected"
 #: Navigation's approach stopped at once: furniture within its guard around the trunk on
 #: the side it would move to (navigation/node.py).
 FOOTPRINT = "touches the footprint"
+#: ... before it set off: from where the robot stands no stance about the object is clear
+#: of furniture (navigation/node.py, STANCE_MEETS_FURNITURE)
+STANCE_MEETS = "no stance turned about the target is clear from here"
 #: Navigation's words for a walk goal that lies in (or too close to) an obstacle: refused at
 #: once against the map, or found so by the LiDAR on the way.
 BAD_GOAL = ("goal in an obstacle", "goal too close to an obstacle")
@@ -354,6 +357,11 @@ class TaskConfig:
     walk_posture: str = "stow"  # the arm while walking without an object
     min_confidence: float = 0.3  # tracks below this are not acted on
     table_min_z: float = 0.25  # m: an object whose centre is higher lies on a table
+    # m: a floor object this far in under a table's top (inside its area) is out of reach:
+    # the top stops the arm over it, and the trunk. Given up before any approach (paper-2,
+    # 2026-12-07: a "baseball" 3 cm in under the deposit table's corner: seven approaches
+    # ended at once, walks to three sides, 20 s, before a probe found nothing there)
+    under_top: float = 0.025
     # rad: a table object whose square stance is stopped by furniture (a table leg by the
     # object) is approached turned by these about it, toward the table's middle
     table_slants: tuple[float, ...] = (0.35, 0.6)
@@ -1755,6 +1763,16 @@ class TidyTask:
         table = self._table_of(rec)
         return table is not None and rec.position[2] - table.target[2] < 0.5 * self.cfg.tall
 
+    def _top_over(self, rec: ObjectRecord) -> Place | None:
+        """The table whose top lies over floor object ``rec`` (``under_top`` in from its
+        edge or more), None when none does."""
+        if rec.position[2] > self.cfg.table_min_z:
+            return None
+        for t in self._tables():
+            if t.outside_by(rec.position) <= -self.cfg.under_top:
+                return t
+        return None
+
     def _table_of(self, rec: ObjectRecord) -> Place | None:
         """The table a table object lies on (the one whose top is nearest), None on the
         floor."""
@@ -1890,6 +1908,12 @@ class TidyTask:
         rec = self.target
         assert rec is not None
         self._refresh_target()
+        top = self._top_over(rec)
+        if top is not None:
+            with self._lock:
+                self.false_spots.append(rec.position)
+            why = f"approach: it lies under {top.name}'s top, out of the arm's reach"
+            return self._give_up_now(Step.APPROACH, why)
         self.probe = probe = self._probe_for(rec)
         walked = _dist(self._pose(), rec.position) > self.cfg.direct_approach_max
         walked = walked or rec.end_walk or self._across_table(rec)
@@ -1942,7 +1966,10 @@ class TidyTask:
             # from the same side)
             self._posture(self.cfg.walk_posture)
             turns = self.cfg.walk_sides
-            k = int(walked) + sum(
+            # no stance clear from here: the side it comes from is where it stands (paper-1,
+            # 2026-12-07: the Rubik's cube's walk to it ended 0.2 m back, where the next
+            # approach ended at once again)
+            k = int(walked or STANCE_MEETS in out.reason) + sum(
                 FOOTPRINT in f.reason or _stopped_off(f.reason) > self.cfg.stopped_far
                 for f in rec.failures
             )

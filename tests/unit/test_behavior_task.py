@@ -204,6 +204,7 @@ class FakeHouse:
         # the robot stands against furniture: an approach from here stops at once on
         # navigation's footprint guard, until a walk (navigate_to) leads it clear
         self.by_furniture = False
+        self.furniture_reason = "blocked: an obstacle touches the footprint"
         # furniture (x, y) on the floor: an approach whose stance comes within 0.35 m of
         # one stops at once on the footprint guard, from wherever it starts
         self.furniture: list[tuple[float, float]] = []
@@ -501,7 +502,7 @@ class FakeHouse:
             return refused
         if self.by_furniture:
             self.t += 0.2
-            return Outcome(False, "blocked: an obstacle touches the footprint")
+            return Outcome(False, self.furniture_reason)
         if self.touching is not None and self.touching(tuple(target[:2])):
             self.t += 0.2
             return Outcome(False, "blocked: an obstacle touches the footprint")
@@ -1599,6 +1600,62 @@ def test_an_approach_stopped_by_furniture_at_once_walks_clear_and_approaches_aga
     moves = [what for what, _ in house.calls if what in ("approach", "navigate_to")]
     assert moves == ["approach", "navigate_to", "approach"]
     assert math.dist(house.at[:2], can.position[:2]) == pytest.approx(CFG.task.probe_standoff)
+
+
+def test_an_approach_with_no_stance_clear_from_here_walks_to_the_next_side_at_once() -> None:
+    # paper-1 (2026-12-07): navigation ended the Rubik's cube's approach before it set off
+    # (no stance about it clear from where the robot stood); the walk to the side it came
+    # from ended 0.2 m back and the approach from there ended at once again. The walk goes
+    # to the next side at once
+    house = FakeHouse(_things())
+    can = house.things[1]
+    house.at = (can.position[0] - 0.6, can.position[1], 0.0)
+    house.by_furniture = True
+    house.furniture_reason = (
+        "blocked: an obstacle touches the footprint at the stance asked, and no stance "
+        "turned about the target is clear from here"
+    )
+    house.memory[1] = SeenObject(1, "tomato_soup_can", can.position)
+    task = _task(house)
+    task.target = ObjectRecord("tomato_soup_can", 1, "tray", can.position, t_found=0.0)
+    assert task._approach().value == "probe"
+    moves = [(what, p) for what, p in house.calls if what in ("approach", "navigate_to")]
+    assert [what for what, _ in moves] == ["approach", "navigate_to", "approach"]
+    walk = moves[1][1]  # facing the can, turned about it from the way the robot faced it
+    assert walk[2] == pytest.approx(CFG.task.walk_sides[1]), walk
+    # any other stop by furniture, and the first walk comes from the side it comes from
+    house = FakeHouse(_things())
+    house.at = (can.position[0] - 0.6, can.position[1], 0.0)
+    house.by_furniture = True
+    house.memory[1] = SeenObject(1, "tomato_soup_can", can.position)
+    task = _task(house)
+    task.target = ObjectRecord("tomato_soup_can", 1, "tray", can.position, t_found=0.0)
+    assert task._approach().value == "probe"
+    walk = next(p for what, p in house.calls if what == "navigate_to")
+    assert walk[2] == pytest.approx(CFG.task.walk_sides[0]), walk
+
+
+def test_a_floor_object_under_a_tables_top_is_given_up_before_any_approach() -> None:
+    # paper-2 (2026-12-07): a "baseball" track 3 cm in under the deposit table's corner;
+    # seven approaches ended at once and walks went to three sides before a probe found
+    # nothing there (20 s). Under a top the arm cannot reach it, real or not
+    house = FakeHouse(_things())
+    table = PLACES["deposit_table"]
+    x0, y0, x1, y1 = table.area
+    under = (x1 - 0.03, y1 - 0.06, 0.037)
+    house.at = (7.6, 3.1, 1.57)
+    task = _task(house)
+    task.target = rec = ObjectRecord("baseball", 9, "green_box", under, t_found=0.0)
+    assert task._approach().value == "choose_target"
+    assert rec.given_up and "under deposit_table's top" in rec.failures[-1].reason
+    assert not [c for c in house.calls if c[0] in ("approach", "navigate_to")]
+    assert under in task.false_spots
+    # beside the table, or on it: taken up as ever
+    for beside in ((x1 + 0.05, y1 - 0.06, 0.037), (x1 - 0.01, y0 + 0.1, 0.037)):
+        task.target = ObjectRecord("baseball", 9, "green_box", beside, t_found=0.0)
+        assert task._top_over(task.target) is None, beside
+    task.target = ObjectRecord("baseball", 9, "green_box", (x1 - 0.1, y1 - 0.1, 0.44), t_found=0.0)
+    assert task._top_over(task.target) is None
 
 
 def test_an_approach_keeps_other_floor_objects_from_under_the_stances_feet() -> None:
