@@ -1293,6 +1293,33 @@ def test_an_object_the_probe_names_otherwise_goes_where_that_class_goes() -> Non
         assert _record(report, t.label).placed
 
 
+def test_a_record_of_another_class_where_an_object_was_grasped_is_that_object() -> None:
+    # paper-1 (2026-12-07): a "coffee can" track 6 cm from the bowl (the bowl from afar)
+    # and a "clamp" where the marker lay stayed unfinished after those were placed; the
+    # views that see there were walked at the trial's end to look for them
+    things = _things()
+    house = FakeHouse(things)
+    can = things[0]  # on the living floor
+    house.at = (can.position[0] - CFG.task.probe_standoff, can.position[1], 0.0)
+    task = _task(house)
+    rec = ObjectRecord(can.label, can.track_id, "tray", can.position, t_found=0.0)
+    x, y, _ = can.position
+    near = ObjectRecord("coffee_can", 40, "tray", (x + 0.06, y, 0.07), t_found=0.0)
+    other = ObjectRecord("lego", 41, "black_box", (x + 0.2, y, 0.02), t_found=0.0)
+    same = ObjectRecord(can.label, 42, "tray", (x + 0.3, y, 0.05), t_found=0.0)
+    task.report.objects.extend([rec, near, other, same])
+    task.target, task.probe = rec, task._probe_for(rec)
+    house.posture = task.probe.posture
+    out, task.plan = house.estimate_grasp(can.label, task.probe.camera, can.track_id)
+    assert out.ok
+    assert task._grasp().value == "carry"
+    assert near not in task.report.objects and 40 in task.done_tracks
+    # farther off, or of its own class (another of the class stands for another object
+    # unless perception's tracks say so): other objects
+    assert other in task.report.objects and 41 not in task.done_tracks
+    assert same in task.report.objects
+
+
 def test_a_second_track_of_the_grasped_object_where_it_lay_is_never_a_target() -> None:
     """paper-5 (2026-12-06): the baseball's record named a track perception had dropped
     (estimate: "unknown track 280"), the probe by class grasped the ball all the same,
