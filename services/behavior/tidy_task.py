@@ -2230,14 +2230,21 @@ class TidyTask:
         if twins and (not merge or any(r.grasped for r in twins)):
             return False  # an object another record stands for
         with self._lock:
-            for r in twins:
-                self.report.objects.remove(r)
-                self.done_tracks.add(r.track_id)
             rec.label, rec.place = name, self.classes[name].place
             rec.close_label = name
-        if twins:
-            self._say(f"{rec.name} is {', '.join(r.name for r in twins)} too")
+        self._merge_into(rec, twins)
         return True
+
+    def _merge_into(self, rec: ObjectRecord, others: Sequence[ObjectRecord]) -> None:
+        """Records ``others`` stand for ``rec``'s object (seen as more tracks from afar):
+        dropped, and their tracks never taken."""
+        if not others:
+            return
+        with self._lock:
+            for r in others:
+                self.report.objects.remove(r)
+                self.done_tracks.add(r.track_id)
+        self._say(f"{rec.name} is {', '.join(r.name for r in others)} too")
 
     def _look_from_back(self, rec: ObjectRecord) -> bool:
         """After a probe that detected nothing: step back to ``relook_standoff`` and look
@@ -2309,11 +2316,7 @@ class TidyTask:
                 rec.grasped = True
                 self.done_tracks.add(rec.track_id)  # its track now follows the gripper
                 self.done_tracks.update(twins)
-                for r in others:
-                    self.report.objects.remove(r)
-                    self.done_tracks.add(r.track_id)
-            if others:
-                self._say(f"{rec.name} is {', '.join(r.name for r in others)} too")
+            self._merge_into(rec, others)
             self.picked_from = rec.position
             self.posture = ""
             return Step.CARRY

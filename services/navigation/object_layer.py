@@ -31,6 +31,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from quadmanip.common.rotations import wrap_angle
 
 __all__ = ["Disc", "ObjectLayerConfig", "floor_obstacles", "handled"]
 
@@ -104,5 +105,5 @@ def handled(xy: np.ndarray, pose: tuple[float, float, float], cfg: ObjectLayerCo
     p = np.asarray(xy, dtype=float).reshape(-1, 2)
     dx, dy = p[:, 0] - pose[0], p[:, 1] - pose[1]
     dist = np.hypot(dx, dy)
-    off = np.abs(np.angle(np.exp(1j * (np.arctan2(dy, dx) - pose[2]))))
+    off = np.abs(wrap_angle(np.arctan2(dy, dx) - pose[2]))
     return (dist < cfg.near_trunk) | ((dist < cfg.near_robot) & (off <= cfg.near_bearing))
