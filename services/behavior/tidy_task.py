@@ -436,9 +436,10 @@ class TaskConfig:
     drop_look_size: float = 1.0
     same_object_radius: float = 0.25  # m: a track of the class this near is the same object
     # m: a record of another class this near where an object was grasped is that object,
-    # named otherwise from afar (paper-1, 2026-12-07: a "clamp" where the marker lay, and a
-    # "coffee can" where the bowl lay, kept the views that see there from being skipped:
-    # walked at the trial's end, about 8 s). Objects lie farther apart (their footprints)
+    # named otherwise from afar (paper-1, 2026-12-07: a "coffee can" 6 cm from the bowl kept
+    # the views that see there from being skipped at the trial's end; a "clamp" 11-13 cm
+    # from the marker did too, beyond this). Generated objects' centres lie 0.116 m apart
+    # or more (the two smallest footprints and the 4 cm clearance)
     other_class_twin: float = 0.1
     # m: a new track this near a spot given up as a false detection is that phantom again,
     # whatever its class (seed-109: a "sugar box", then a "cracker box", at one corner of
