@@ -439,7 +439,6 @@ class NavigationNode(Service):
             tracks.extents,
             tracks.confirmed,
             self.floor_zones,
-            None,
             None if goal is None else (float(goal[0]), float(goal[1])),
             self.config.objects,
             exempt,

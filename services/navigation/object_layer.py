@@ -65,7 +65,6 @@ def floor_obstacles(
     extents: np.ndarray,
     confirmed: np.ndarray,
     zones: Sequence[tuple[float, float, float, float]],
-    robot_xy: tuple[float, float] | None,
     goal_xy: tuple[float, float] | None,
     cfg: ObjectLayerConfig,
     exempt: np.ndarray | None = None,
@@ -73,7 +72,7 @@ def floor_obstacles(
     """Discs (map frame) for the tracks with map-frame ``centroids`` (N, 3) and
     ``extents`` (N, 3) that count as floor obstacles (the module docstring says which);
     ``zones`` are (x_min, y_min, x_max, y_max) areas; ``exempt`` (N,) marks tracks that
-    are none, and without ``robot_xy`` no track is left out for lying near the robot."""
+    are none (what the robot handles or holds, :func:`handled`)."""
     if not cfg.enabled:
         return []
     c = np.asarray(centroids, dtype=float).reshape(-1, 3)
@@ -89,8 +88,6 @@ def floor_obstacles(
         if not conf or not (math.isfinite(x) and math.isfinite(y)) or z >= cfg.max_height:
             continue
         if not any(x0 - m <= x <= x1 + m and y0 - m <= y <= y1 + m for x0, y0, x1, y1 in zones):
-            continue
-        if robot_xy is not None and math.hypot(x - robot_xy[0], y - robot_xy[1]) < cfg.near_robot:
             continue
         if goal_xy is not None and math.hypot(x - goal_xy[0], y - goal_xy[1]) < cfg.near_goal:
             continue
