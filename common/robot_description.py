@@ -241,6 +241,19 @@ def arm_dimensions(model: mujoco.MjModel | None = None) -> dict[str, float]:
     }
 
 
+def tcp_in_gripper_camera(model: mujoco.MjModel | None = None) -> np.ndarray:
+    """Position of the gripper's tool centre in the gripper camera's optical frame (m):
+    where a held object is, for whoever knows only the camera's pose. Both sites ride the
+    same link, so the offset is constant."""
+    m = _model(model)
+    cam, tcp = m.site(CAMERA_OPTICAL_SITES[GRIPPER_CAMERA]), m.site(GRIPPER_TCP_SITE)
+    if int(cam.bodyid[0]) != int(tcp.bodyid[0]):
+        raise ValueError("the gripper camera and the tool centre ride different links")
+    r = np.zeros(9)
+    mujoco.mju_quat2Mat(r, cam.quat)
+    return r.reshape(3, 3).T @ (tcp.pos - cam.pos)
+
+
 def arm_mount(model: mujoco.MjModel | None = None) -> np.ndarray:
     """Position of the `arm_base` body in the base frame (m)."""
     return _model(model).body(ARM_BASE_BODY).pos.copy()

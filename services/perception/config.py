@@ -53,6 +53,12 @@ class NodeConfig:
     # px: a box this near the image's border may show a cut-off object; the memory takes
     # it as a partial observation (object_memory.Observation.partial)
     edge_px: float = 4.0
+    # m: a sphere about the gripper's tool centre (placed from the newest gripper camera
+    # frame's pose) that the object memory neither learns nor unlearns from: what the
+    # gripper holds moves with it (object_memory.ObjectMemory.update's ``blind``)
+    held_radius: float = 0.15
+    # s: a gripper pose older than this (robot time) than the frame places no sphere
+    held_pose_max_age: float = 0.3
     # a folder: each rejected grasp estimate's inputs (depth, colour, box, K, camera pose,
     # label, surface) are written there as .npz (``quadmanip perception replay`` reads
     # them back), so a rejection seen live can be studied offline; "" writes nothing

@@ -40,8 +40,12 @@ from quadmanip.common.actions import ActionFailed, GoalHandle
 from quadmanip.common.joint_layout import N_LEG_JOINTS
 from quadmanip.common.object_catalogue import load_catalogue
 from quadmanip.common.reasons import refusal_text
-from quadmanip.common.robot_description import FRONT_CAMERA, GRIPPER_CAMERA
-from quadmanip.common.rotations import quat_from_yaw, yaw_from_quat
+from quadmanip.common.robot_description import (
+    FRONT_CAMERA,
+    GRIPPER_CAMERA,
+    tcp_in_gripper_camera,
+)
+from quadmanip.common.rotations import quat_from_yaw, quat_to_mat, yaw_from_quat
 from quadmanip.common.service import Input, Output, Service, run_service
 from quadmanip.services.perception.config import PerceptionConfig
 from quadmanip.services.perception.detector import Detection, Detector, reported
@@ -137,6 +141,9 @@ class PerceptionNode(Service):
         self.lock = threading.Lock()
         self.cond = threading.Condition(self.lock)
         self.pending: dict[str, m.RgbdImage] = {}
+        # newest gripper camera pose in the base frame (stamp, position, orientation)
+        self.gripper_pose: tuple[float, np.ndarray, np.ndarray] | None = None
+        self.tcp_in_camera = tcp_in_gripper_camera()
         self.processed: dict[str, Processed] = {}
         self.last_frame_wall = {c: time.monotonic() for c in CAMERA_TOPICS}
         self.camera_silent = {c: False for c in CAMERA_TOPICS}
@@ -178,6 +185,8 @@ class PerceptionNode(Service):
     # ------------------------------------------------------------------ inputs
     def _on_frame(self, cam: str, img: m.RgbdImage) -> None:
         with self.cond:
+            if cam == GRIPPER_CAMERA:  # where the tool centre is, for the held sphere
+                self.gripper_pose = (img.stamp, img.position.copy(), img.orientation.copy())
             if cam in self.pending:
                 self.counters["frames_dropped"] += 1
             self.pending[cam] = img
@@ -216,6 +225,20 @@ class PerceptionNode(Service):
         if abs(od.stamp - stamp) > self.config.node.odom_max_skew:
             return None
         return od.position.copy(), od.orientation.copy()
+
+    def _held_sphere(
+        self, stamp: float, base_position: np.ndarray, base_orientation: np.ndarray
+    ) -> tuple[np.ndarray, float] | None:
+        """The sphere about the tool centre in odom at ``stamp`` that the memory ignores
+        (what the gripper holds is no object lying there; None: no recent gripper pose)."""
+        with self.lock:
+            pose = self.gripper_pose
+        nc = self.config.node
+        if pose is None or abs(pose[0] - stamp) > nc.held_pose_max_age:
+            return None
+        _, p, q = pose
+        tcp_base = p + quat_to_mat(q) @ self.tcp_in_camera
+        return base_position + quat_to_mat(base_orientation) @ tcp_base, nc.held_radius
 
     def _arm_still(self) -> bool:
         ls = self.lowstate.get()
@@ -258,6 +281,7 @@ class PerceptionNode(Service):
         candidates = self.detector(img.rgb, img.depth)  # down to score_threshold
         dets = reported(candidates, dc.report_threshold, dc.overlap_iou)
         base = self._base_at(img.stamp)
+        held = None if base is None else self._held_sphere(img.stamp, *base)
         if base is None:
             self.counters["no_odometry"] += 1
             # the base frame alone still serves a grasp; the memory needs odom
@@ -330,7 +354,7 @@ class PerceptionNode(Service):
             with self.lock:
                 self._follow_the_map()
                 before = self.memory.confirmed_ids()
-                self.memory.update(obs, view, img.stamp)
+                self.memory.update(obs, view, img.stamp, blind=held)
                 fresh = self.memory.confirmed_ids() - before  # (copies of these only)
                 new = [t for i in sorted(fresh) if (t := self.memory.get(i)) is not None]
             self._mark_seen(cam, img, cam_p, cam_q, np.asarray(base[0])[:2])

@@ -218,6 +218,16 @@ def _as_observation(o: ObservationLike) -> Observation | None:
     return Observation(o.class_name, score, c, e, str(o.camera), bool(o.partial))
 
 
+def _inside(
+    point: Sequence[float] | np.ndarray, sphere: tuple[Sequence[float], float] | None
+) -> bool:
+    """Whether ``point`` lies in ``sphere`` (centre, radius); never for None."""
+    if sphere is None:
+        return False
+    centre, radius = sphere
+    return float(np.linalg.norm(np.asarray(point, float) - np.asarray(centre, float))) < radius
+
+
 def _pose_matrix(pose: np.ndarray | tuple[np.ndarray, np.ndarray]) -> np.ndarray:
     """A 4x4 homogeneous matrix from itself or a (position, quaternion wxyz) pair."""
     if isinstance(pose, tuple):
@@ -298,19 +308,29 @@ class ObjectMemory:
         self._tracks.clear()
 
     def update(
-        self, observations: Iterable[ObservationLike], view: CameraView | None, stamp: float
+        self,
+        observations: Iterable[ObservationLike],
+        view: CameraView | None,
+        stamp: float,
+        blind: tuple[Sequence[float], float] | None = None,
     ) -> list[int]:
         """Fuse one frame's detections (all from ``view``'s camera; may be empty); returns
         the ids of the tracks they updated or created, in the observations' order
-        (malformed, low-score and unmatched partial observations are skipped and get no
-        id)."""
+        (malformed, low-score, unmatched partial and blind observations are skipped and
+        get no id).
+
+        ``blind``: a sphere (odom centre, radius) the memory neither learns nor unlearns
+        from: observations inside are dropped and tracks inside do not miss. The node
+        passes the gripper's: what it holds moves with it, and is not an object lying
+        where the cameras saw it (the held can was filed as a floor object and walked
+        back to in a paper-5 trial, 2026-12-07)."""
         cfg = self.config
         obs: list[Observation] = []
         for raw in observations:
             o = _as_observation(raw)
             if o is None:
                 self.rejected += 1
-            elif o.score >= cfg.min_score:
+            elif o.score >= cfg.min_score and not _inside(o.centroid, blind):
                 obs.append(o)
         # tentative tracks not seen again in time were noise
         for tid in [
@@ -335,7 +355,13 @@ class ObjectMemory:
             ids.append(tid)
             seen.add(tid)
         if view is not None:
-            unseen = [i for i in before if i not in seen and i in self._tracks]
+            unseen = [
+                i
+                for i in before
+                if i not in seen
+                and i in self._tracks
+                and not _inside(self._tracks[i].centroid, blind)
+            ]
             self._count_misses(unseen, view)
         self._merge(seen)
         for t in self._tracks.values():

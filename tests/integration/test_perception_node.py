@@ -16,6 +16,8 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 from quadmanip.common import messages as m
+from quadmanip.common.robot_description import tcp_in_gripper_camera
+from quadmanip.common.rotations import quat_to_mat
 from quadmanip.testbench.probe_views import render_probe_view
 
 pytestmark = pytest.mark.integration
@@ -36,6 +38,7 @@ class FakeRobot:
 
     def __init__(self, bus, frame: m.RgbdImage, topic: str) -> None:
         self.bus, self.frame, self.topic = bus, frame, topic
+        self.also: dict[str, m.RgbdImage] = {}  # more frames, by topic, at the same rate
         self.t = 100.0
         self.running = True
         self.cameras_on = True
@@ -62,18 +65,18 @@ class FakeRobot:
             ls = m.example(m.LowState, stamp=stamp)
             self.pubs["sim/lowstate"].publish(ls)
             if k % 5 == 0 and self.cameras_on:
-                f = self.frame
-                self.pubs[self.topic].publish(
-                    m.RgbdImage(
-                        stamp=stamp,
-                        camera=f.camera,
-                        rgb=f.rgb,
-                        depth=f.depth,
-                        K=f.K,
-                        position=f.position,
-                        orientation=f.orientation,
-                    )  # fmt: skip
-                )
+                for topic, f in [(self.topic, self.frame), *self.also.items()]:
+                    self.pubs[topic].publish(
+                        m.RgbdImage(
+                            stamp=stamp,
+                            camera=f.camera,
+                            rgb=f.rgb,
+                            depth=f.depth,
+                            K=f.K,
+                            position=f.position,
+                            orientation=f.orientation,
+                        )  # fmt: skip
+                    )
             k += 1
             time.sleep(0.02)
 
@@ -122,6 +125,7 @@ def test_detects_remembers_and_grasps_then_survives_bad_input(
         truth_odom = view.base_rotation.T @ (view.obj_position - view.base_position)
         truth_odom += np.array([1.0, 2.0, 0.3])
         assert np.linalg.norm(d.centroids[i][:2] - truth_odom[:2]) < 0.05
+        seen_at = d.centroids[i].copy()  # where the frames place it (odom)
         # 2. the memory holds it, confirmed, after a few frames
         _wait(
             lambda: (o := objects.get()) is not None
@@ -211,6 +215,34 @@ def test_detects_remembers_and_grasps_then_survives_bad_input(
         progress.publish(took(True))
         _wait(lambda: track_of(objects.get(), tid) is None, 10.0, "the track stayed", proc)
         assert any("track forgotten" in line for line in proc.lines)
+        # 6b. what the gripper holds is no object lying there: the front camera's view of
+        # the object, shifted to lie at the tool centre of the gripper camera's pose (a
+        # frame without depth), starts no track; shifted 0.4 m beyond, it does
+        assert view.camera == "gripper_camera"
+        frame = _frame(view)
+        robot.frame = m.RgbdImage(**{**frame.__dict__, "depth": np.zeros_like(view.depth)})
+        tcp = frame.position + quat_to_mat(frame.orientation) @ tcp_in_gripper_camera()
+        lying = seen_at - np.array([1.0, 2.0, 0.3])  # base frame (odom = base + that)
+
+        def front_at(where: np.ndarray) -> m.RgbdImage:
+            shifted = frame.position + (where - lying)
+            return m.RgbdImage(**{**frame.__dict__, "position": shifted})
+
+        def tracked() -> bool:
+            o = objects.get()
+            return o is not None and OBJECT in list(o.labels)
+
+        n_dets = len(dets)
+        robot.also = {"sim/camera/front": front_at(tcp)}
+        robot.cameras_on = True
+        _wait(lambda: len(dets) > n_dets + 20, 20.0, "no frames", proc)
+        held = [x for x in dets[n_dets:] if OBJECT in x.labels]
+        assert held, "the held object is no longer detected"
+        assert not tracked()
+        robot.also = {"sim/camera/front": front_at(tcp + np.array([0.4, 0.0, 0.0]))}
+        _wait(tracked, 20.0, "no track of the object set down", proc)
+        robot.cameras_on = False
+        robot.frame, robot.also = _frame(view), {}
         robot.cameras_on = True
         # 7. bad frames: a reason, no crash
         bad = _frame(view)

@@ -390,3 +390,25 @@ def test_a_cut_off_view_keeps_a_track_but_starts_and_moves_none() -> None:
     for k in range(5):
         mem.update([bowl], view(depth=depth_of(4.0)), 2.0 + 0.1 * k)
     assert mem.get(tid).class_name == "cup"
+
+
+def test_the_held_sphere_starts_no_track_and_costs_none_a_miss() -> None:
+    """What the gripper holds is seen where the gripper is: inside the sphere nothing is
+    learnt (a held can was filed as a floor object, paper-5 2026-12-07), nor unlearnt (a
+    track the gripper hides keeps its state); outside it the memory works as before."""
+    mem = ObjectMemory(MemoryConfig(max_misses=1))
+    lying = np.array([1.5, 0.1, 0.05])
+    (tid,) = confirmed(mem, lying)
+    held = np.array([1.2, -0.2, 0.3])
+    v = view(depth=depth_of(2.5))  # the floor behind the lying cup: it would miss
+    # the lying cup inside the sphere does not miss ...
+    mem.update([], v, 1.0, blind=(lying + [0.05, 0.0, 0.1], 0.15))
+    assert mem.get(tid) is not None and mem.get(tid).misses == 0
+    # ... outside it, it does (one miss removes it here)
+    mem.update([], v, 1.1, blind=(held, 0.15))
+    assert mem.get(tid) is None
+    for k in range(4):  # the held cup, seen again and again, starts nothing
+        ids = mem.update([obs(held)], v, 2.0 + 0.1 * k, blind=(held, 0.15))
+        assert ids == [] and mem.tracks(confirmed_only=False) == []
+    # the same observation outside the sphere starts a track
+    assert len(mem.update([obs(held)], v, 3.0, blind=(lying, 0.15))) == 1

@@ -631,3 +631,16 @@ def test_robot_qpos_from_a_bigger_model() -> None:
         n = 7 if ref.type[0] == mujoco.mjtJoint.mjJNT_FREE else 1
         full[dst.qposadr[0] : dst.qposadr[0] + n] = qpos[ref.qposadr[0] : ref.qposadr[0] + n]
     np.testing.assert_array_equal(rd.robot_qpos(big, full), qpos)
+
+
+def test_tcp_in_gripper_camera_is_where_the_sites_put_it(model) -> None:
+    """The held-object sphere's centre: the tool centre seen from the gripper camera,
+    checked against the compiled world poses at the home keyframe."""
+    d = mujoco.MjData(model)
+    d.qpos[:] = rd.home_qpos(model)
+    mujoco.mj_forward(model, d)
+    cam, tcp = d.site(rd.CAMERA_OPTICAL_SITES[rd.GRIPPER_CAMERA]), d.site(rd.GRIPPER_TCP_SITE)
+    want = cam.xmat.reshape(3, 3).T @ (tcp.xpos - cam.xpos)
+    got = rd.tcp_in_gripper_camera(model)
+    np.testing.assert_allclose(got, want, atol=1e-9)
+    assert got[2] > 0.03  # ahead of the lens, along the optical axis
