@@ -1471,6 +1471,22 @@ def test_a_track_at_table_height_away_from_any_table_is_not_acted_on() -> None:
         assert _record(report, t.label).placed
 
 
+def test_a_floor_track_higher_than_its_class_stands_is_not_acted_on() -> None:
+    # paper-5, 2026-12-07: the front camera saw the held soup can as it was lifted and
+    # filed it 22 cm up, over the floor: walked back to and probed (13 s). A can stands
+    # 10 cm tall, so its centre rests 5 cm up; a cracker box stood on end, 10.5 cm
+    things = _things()
+    ghost = Thing("tomato_soup_can", 90, (2.9, 1.9, 0.22))  # the living room's floor
+    box = Thing("cracker_box", 91, (3.3, 1.4, 0.12))  # standing on end: it rests there
+    house = FakeHouse([*things, box], phantoms=[ghost])
+    house.memory[90] = SeenObject(90, "tomato_soup_can", ghost.position)
+    report = _task(house).run()
+    assert ("tomato_soup_can", 90) not in _calls(house, "estimate_grasp")
+    assert not [r for r in report.objects if r.track_id == 90]
+    for t in [*things, box]:
+        assert _record(report, t.label).placed
+
+
 def test_a_detection_outside_the_searched_zones_is_not_acted_on() -> None:
     # the kitchen's deposit furniture and cabinet gave false detections that each cost an
     # approach and two probes: objects lie in the zones the task searches
@@ -1808,8 +1824,24 @@ def test_a_view_where_a_found_object_is_left_undone_is_not_skipped() -> None:
                        position=(*spot, 0.03), t_found=10.0)  # fmt: skip
     task.report.objects.append(rec)
     assert not task._view_seen(vp)
+    # once: paper-1 (2026-12-07) walked nine views after its last object for two
+    # phantoms' records, every floor and table view whose band held their spots
+    assert task._view_seen(vp)
+    task.relooked.clear()  # (its track seen again, and lost again)
     rec.placed = True  # done with it: nothing to look for there
     assert task._view_seen(vp)
+    # a table's view does not look for an object on the floor under it
+    task.zone = PLACES["living_table"]
+    zt, st = task.zone, CFG.search["search_table"]
+    for vt in zone_viewpoints(zt.stand, (zt.target[0], zt.target[1]), zt.size, st):
+        p = view_samples(vt, (zt.target[0], zt.target[1]), zt.size, st)[0]
+        assert sees(vt, p, st)
+        rec = ObjectRecord(label="lego", track_id=6, place="black_box",
+                           position=(*p, 0.02), t_found=10.0)  # fmt: skip
+        task.report.objects.append(rec)
+        assert task._view_seen(vt)
+        rec.position = (*p, 0.43)  # on the table: looked for
+        assert not task._view_seen(vt)
 
 
 @pytest.mark.parametrize("at_the_end", [False, True])
