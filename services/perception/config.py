@@ -57,7 +57,7 @@ class NodeConfig:
     # frame's pose) that the object memory neither learns nor unlearns from: what the
     # gripper holds moves with it (object_memory.ObjectMemory.update's ``blind``)
     held_radius: float = 0.15
-    # s: a gripper pose older than this (robot time) than the frame places no sphere
+    # s: a gripper pose further than this (robot time) from the frame places no sphere
     held_pose_max_age: float = 0.3
     # a folder: each rejected grasp estimate's inputs (depth, colour, box, K, camera pose,
     # label, surface) are written there as .npz (``quadmanip perception replay`` reads
