@@ -159,12 +159,16 @@ class Costmap:
     def lethal_except_near(self, xy: tuple[float, float], radius: float) -> np.ndarray:
         """:attr:`lethal` without the object layer's cells within ``radius`` of ``xy``
         (the object an approach goes to is no obstacle to it)."""
+        return self._lethal_with(self.objects_except_near(xy, radius))
+
+    def objects_except_near(self, xy: tuple[float, float], radius: float) -> np.ndarray:
+        """The object layer without its cells within ``radius`` of ``xy``."""
         objects = self.objects.copy()
         disc = self._disc(xy, radius)
         if disc is not None:
             win, near = disc
             objects[win] &= ~near
-        return self._lethal_with(objects)
+        return objects
 
     def _disc(
         self, xy: tuple[float, float], radius: float

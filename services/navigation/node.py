@@ -45,6 +45,7 @@ from quadmanip.services.navigation.approach import (
     ApproachController,
     approach_pose,
     free_approach_heading,
+    lead_in_pose,
     stance_clear,
 )
 from quadmanip.services.navigation.config import NavigationConfig
@@ -134,6 +135,7 @@ class _Job:
     anchor: ScanAnchor | None = None
     anchor_scan: float = -math.inf
     t_settle: float | None = None
+    lead: Pose2 | None = None  # approach: the map pose it walks to first (planner)
 
 
 class NavigationNode(Service):
@@ -433,6 +435,9 @@ class NavigationNode(Service):
         # track stays an obstacle however near it passes. Standing or approaching: every
         # track is one (an approach's stance check leaves its own target out)
         walking = goal is not None
+        job = self.job
+        if job is not None and job.lead is not None:
+            goal = None  # a lead-in goes up to no object: those by its goal are obstacles too
         exempt = np.isin(np.asarray(tracks.ids), list(self.walk_exempt)) if walking else None
         discs = floor_obstacles(
             np.column_stack([xy, c[:, 2]]),
@@ -682,7 +687,9 @@ class NavigationNode(Service):
             job.start_pose = here
             if not self._start_job(job, now, pose, odom):
                 return
-        if job.kind == "approach":
+        if job.kind == "approach" and job.lead is not None:
+            self._step_lead_in(job, now, pose, odom)
+        elif job.kind == "approach":
             self._step_approach(job, now, odom)
         elif job.kind == "navigate":
             self._step_navigate(job, now, pose)
@@ -721,7 +728,6 @@ class NavigationNode(Service):
                     t, float(g.standoff), heading, odom, nose_in=on_top
                 )
             job.target = approach_pose(t, float(g.standoff), heading)
-            job.total = max(math.hypot(job.target[0] - odom[0], job.target[1] - odom[1]), 1e-3)
             # what was asked and where it stands, for a reader of the log (a stalled
             # approach is explained by its stance)
             self.log.info(
@@ -743,22 +749,98 @@ class NavigationNode(Service):
                 # run); the task walks to another side of the object and approaches again
                 self._finish(job, "blocked", STANCE_MEETS_FURNITURE, odom)
                 return False
-            od = self.odom_cache.get()
-            self.approacher.reset(
-                None
-                if od is None
-                else (*od.linear_velocity[:2], od.angular_velocity[2])  # (base frame)
-            )
-            scan = self.scan_cache.get()
-            if scan is not None:
-                # (the newest odometry when the scan's is not known: the robot stands still
-                # at an approach's start, and an approach without an anchor drifts cm)
-                at_scan = self.odom_history.at(float(scan.stamp)) or odom
-                job.anchor = ScanAnchor(self._scan_points(scan).points, at_scan,
-                                        self.config.anchor)  # fmt: skip
-                job.anchor_scan = float(scan.stamp)
+            meets_object, lead = self._lead_in(t, job.target, odom)
+            if meets_object:
+                self.log.info(
+                    "approach lead-in",
+                    why="the straight way meets a floor object",
+                    map_lead="none clear" if lead is None else
+                    "[{:.2f}, {:.2f}, {:.2f}]".format(*lead),
+                )  # fmt: skip
+            if lead is not None:
+                c = self.config.approach
+                self.walk_exempt = self._tracks_near(pose)
+                why = self.navigator.start(lead, now, pose, self.costmap, self.static_costmap,
+                                           c.lead_tolerance_xy, c.lead_tolerance_yaw,
+                                           pass_through=True)  # fmt: skip
+                if not why:
+                    job.lead = lead
+                    self._update_objects()
+                    return True
+                self.log.info("approach lead-in refused", why=why)
+            self._begin_straight(job, now, odom)
             return True
         return True  # explore chooses its goals as it goes
+
+    def _begin_straight(self, job: _Job, now: float, odom: Pose2) -> None:
+        """Start an approach's straight way (from the start, or where its lead-in ends)."""
+        assert job.target is not None
+        job.t0 = now
+        job.total = max(math.hypot(job.target[0] - odom[0], job.target[1] - odom[1]), 1e-3)
+        od = self.odom_cache.get()
+        self.approacher.reset(
+            None
+            if od is None
+            else (*od.linear_velocity[:2], od.angular_velocity[2])  # (base frame)
+        )
+        scan = self.scan_cache.get()
+        if scan is not None:
+            # (the newest odometry when the scan's is not known: the robot stands still
+            # at an approach's start, and an approach without an anchor drifts cm)
+            at_scan = self.odom_history.at(float(scan.stamp)) or odom
+            job.anchor = ScanAnchor(self._scan_points(scan).points, at_scan,
+                                    self.config.anchor)  # fmt: skip
+            job.anchor_scan = float(scan.stamp)
+
+    def _lead_in(
+        self, target: tuple[float, float], stance: Pose2, odom: Pose2
+    ) -> tuple[bool, Pose2 | None]:
+        """Whether an approach's straight way from ``odom`` to ``stance`` (odometry frame)
+        meets a floor object of the costmap's object layer other than its ``target``, and
+        the map pose to walk to first (:func:`approach.lead_in_pose`): clear of the
+        costmap's obstacles, table tops and objects, and where the planner may stand."""
+        cm, c = self.costmap, self.config.approach
+        if cm is None or not c.lead_backs or not cm.objects.any():
+            return False, None
+        in_map = compose(self.map_to_odom, (target[0], target[1], 0.0))
+        near = self.config.objects.max_radius + 0.05
+        objects = cm.objects_except_near(in_map[:2], near)
+        if not objects.any():
+            return False, None
+        lethal = cm.lethal_except_near(in_map[:2], near)
+        if self.table_tops is not None:
+            lethal = lethal | self.table_tops
+
+        def way_clear(p: Pose2) -> bool:
+            return stance_clear(cm, objects, p, c.lead_margin)
+
+        def stand_clear(p: Pose2) -> bool:
+            ok = bool(cm.is_traversable(np.array([p[:2]]))[0])
+            return ok and stance_clear(cm, lethal, p, c.lead_margin)
+
+        return lead_in_pose(
+            way_clear,
+            stand_clear,
+            compose(self.map_to_odom, odom),
+            compose(self.map_to_odom, stance),
+            c.lead_backs,
+        )
+
+    def _step_lead_in(self, job: _Job, now: float, pose: Pose2, odom: Pose2) -> None:
+        """An approach's walk to its lead-in pose; then (reached, or not: the straight way
+        as before) its straight way in."""
+        assert self.costmap is not None
+        st = self.navigator.step(now, pose, self.costmap, standing=self._standing())
+        late = now - job.t0 > self.config.node.approach_timeout
+        if st.state == "active" and not late:
+            self._send(job, st.vx, st.vy, st.wz)
+            job.text = f"lead-in: {st.reason}"
+            return
+        self.navigator.cancel()
+        self.log.info("approach lead-in ended", state="late" if late else st.state,
+                      reason=st.reason)  # fmt: skip
+        job.lead = None
+        self._begin_straight(job, now, odom)
 
     def _start_navigation(self, job: _Job, now: float, pose: Pose2, target: Pose2,
                           tol_xy: float, tol_yaw: float, ignore_yaw: bool,

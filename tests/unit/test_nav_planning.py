@@ -1011,6 +1011,7 @@ def test_a_walk_keeps_the_floor_objects_it_passes_but_not_those_where_it_began()
     node.objects_cache = SimpleNamespace(get=lambda: tracks)
     node.navigator = SimpleNamespace(goal=None)
     node.walk_exempt = set()
+    node.job = None
     beside = (box[0] - 0.4, box[1] - 0.1, 0.0)  # the robot 0.41 m from the box
 
     def disc_there() -> bool:
@@ -1032,3 +1033,64 @@ def test_a_walk_keeps_the_floor_objects_it_passes_but_not_those_where_it_began()
     side = (box[0] - 0.5 * math.cos(0.87), box[1] - 0.5 * math.sin(0.87), 0.0)
     assert node._tracks_near(side) == set()
     assert node._tracks_near((box[0] - 0.25, box[1] - 0.1, 2.0)) == {9}  # at the trunk
+
+
+def test_a_straight_way_meeting_a_floor_object_is_led_in_from_behind_the_stance():
+    # paper-5 (2026-12-07), as the trial's logs have it (map frame): the robot stood at
+    # (2.84, 2.19) facing west, to approach the bowl at (2.94, 3.19) on the living table's
+    # edge, square to the table (north), 0.36 m short; a soup can lay on the floor at
+    # (2.69, 2.61). The straight way passed 0.2 m beside it and the trunk kicked it under
+    # the table. Now the approach walks to behind the stance first, and comes in north.
+    node = _node_on_the_house_map()
+    bowl, start, can = (2.94, 3.19), (2.84, 2.19, 3.09), (2.69, 2.61)
+    stance = approach_pose(bowl, 0.36, math.pi / 2)
+    assert node._lead_in(bowl, stance, start) == (False, None)  # no objects: straight
+    node.costmap.set_objects([(*can, 0.083)])
+    meets, lead = node._lead_in(bowl, stance, start)
+    assert meets and lead is not None
+    assert lead[0] == pytest.approx(stance[0]) and lead[2] == pytest.approx(math.pi / 2)
+    back = stance[1] - lead[1]
+    assert min(abs(back - b) for b in node.config.approach.lead_backs) < 1e-9
+    # from the lead-in the way north passes the can clear of the trunk and its feet
+    assert abs(lead[0] - can[0]) - 0.5 * node.costmap.config.footprint_width > 0.083
+    # already behind the stance: straight in
+    assert node._lead_in(bowl, stance, (stance[0], stance[1] - 0.6, math.pi / 2)) == (
+        False,
+        None,
+    )
+    # the bowl's own disc is no obstacle to its approach (on the floor, the target)
+    node.costmap.set_objects([(*bowl, 0.1)])
+    assert node._lead_in(bowl, stance, start) == (False, None)
+
+
+def test_lead_in_pose_tries_its_backs_in_order_and_needs_the_way_in_clear():
+    from quadmanip.services.navigation.approach import lead_in_pose, straight_way
+
+    stance = (2.0, 0.0, 0.0)
+    way = straight_way((0.0, 0.0, math.pi), stance, step=0.1)
+    assert way[-1] == stance and len(way) == 21
+    assert all(abs(b[0] - a[0]) <= 0.1 + 1e-9 for a, b in zip(way, way[1:], strict=False))
+    assert way[10][2] == pytest.approx(math.pi / 2)  # the heading turns evenly
+
+    def clear_of(x0: float, x1: float, y0: float, y1: float):
+        return lambda p: not (x0 <= p[0] <= x1 and y0 <= p[1] <= y1)
+
+    # an object halfway, on the way from (0, 1): led in from 0.45 m behind
+    obj = clear_of(0.9, 1.1, 0.4, 0.6)
+    meets, lead = lead_in_pose(obj, lambda p: True, (0.0, 1.0, 0.0), stance, (0.45, 0.6))
+    assert meets and lead == pytest.approx((1.55, 0.0, 0.0))
+    # that one taken (the robot may not stand there): the next
+    meets, lead = lead_in_pose(obj, lambda p: p[0] < 1.5, (0.0, 1.0, 0.0), stance, (0.45, 0.6))
+    assert meets and lead == pytest.approx((1.4, 0.0, 0.0))
+    # an object on the stance's own line in: no lead-in is clear
+    on_line = clear_of(1.5, 1.8, -0.1, 0.3)
+    assert lead_in_pose(on_line, lambda p: True, (0.0, 1.0, 0.0), stance, (0.45, 0.6)) == (
+        True,
+        None,
+    )
+    # where the robot stands (the first quarter of the way) does not count
+    at_start = clear_of(-0.1, 0.1, 0.9, 1.1)
+    assert lead_in_pose(at_start, lambda p: True, (0.0, 1.0, 0.0), stance, (0.45,)) == (
+        False,
+        None,
+    )
