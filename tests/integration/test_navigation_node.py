@@ -96,6 +96,31 @@ def _result(h, proc, timeout: float = 90.0) -> m.ActionResult:
             raise TimeoutError("no result\n" + "\n".join(proc.lines[-20:]))
 
 
+def _one_track(
+    track_id: int,
+    label: str,
+    odom_xy: tuple[float, float],
+    map_xy: np.ndarray,
+    z: float,
+    extents: tuple[float, float, float],
+    confirmed: int = 1,
+) -> m.ObjectTracks:
+    """Perception's memory holding one object (centroid in odom and in the map)."""
+    return m.ObjectTracks(
+        stamp=0.0,
+        ids=np.array([track_id]),
+        labels=[label],
+        centroids=np.array([[odom_xy[0], odom_xy[1], z]]),
+        extents=np.array([extents], dtype=np.float32),
+        confidences=np.array([0.9], dtype=np.float32),
+        observations=np.array([9]),
+        last_seen=np.array([0.0]),
+        confirmed=np.array([confirmed], dtype=np.uint8),
+        map_centroids=np.array([[map_xy[0], map_xy[1], z]]),
+        in_map=True,
+    )
+
+
 def test_walks_through_the_doorway_and_reports(nav):
     bus, robot, proc, _ = nav
     paths: list[m.Path] = []
@@ -278,21 +303,8 @@ def test_a_floor_object_in_perceptions_memory_is_a_costmap_obstacle(nav):
     pub = bus.publisher("perception/objects")
 
     def publish(confirmed: int) -> None:
-        pub.publish(
-            m.ObjectTracks(
-                stamp=0.0,
-                ids=np.array([7]),
-                labels=["cracker_box"],
-                centroids=np.array([[odom[0], odom[1], 0.105]]),
-                extents=np.array([[0.16, 0.08, 0.21]], dtype=np.float32),
-                confidences=np.array([0.9], dtype=np.float32),
-                observations=np.array([9]),
-                last_seen=np.array([0.0]),
-                confirmed=np.array([confirmed], dtype=np.uint8),
-                map_centroids=np.array([[*spot, 0.105]]),
-                in_map=True,
-            )
-        )
+        box = (0.16, 0.08, 0.21)
+        pub.publish(_one_track(7, "cracker_box", odom, spot, 0.105, box, confirmed))
 
     def marked() -> bool:
         publish(1)
@@ -323,21 +335,8 @@ def test_an_approach_whose_straight_way_meets_a_floor_object_walks_round_it_firs
     odom_can = robot.odom_of((*can, 0.0))
 
     def publish() -> None:
-        pub.publish(
-            m.ObjectTracks(
-                stamp=0.0,
-                ids=np.array([3]),
-                labels=["tomato_soup_can"],
-                centroids=np.array([[odom_can[0], odom_can[1], 0.05]]),
-                extents=np.array([[0.067, 0.067, 0.1]], dtype=np.float32),
-                confidences=np.array([0.9], dtype=np.float32),
-                observations=np.array([9]),
-                last_seen=np.array([0.0]),
-                confirmed=np.array([1], dtype=np.uint8),
-                map_centroids=np.array([[*can, 0.05]]),
-                in_map=True,
-            )
-        )
+        size = (0.067, 0.067, 0.1)
+        pub.publish(_one_track(3, "tomato_soup_can", odom_can[:2], can, 0.05, size))
 
     costmap = bus.latest("navigation/costmap")
 
