@@ -792,6 +792,18 @@ class NavigationNode(Service):
                                     self.config.anchor)  # fmt: skip
             job.anchor_scan = float(scan.stamp)
 
+    def _target_in_map(self, target: tuple[float, float]) -> tuple[tuple[float, float], float]:
+        """An approach's odometry ``target`` in the map, and the radius about it within
+        which the object layer is its own object (no obstacle to its approach)."""
+        x, y, _ = compose(self.map_to_odom, (target[0], target[1], 0.0))
+        return (x, y), self.config.objects.max_radius + 0.05
+
+    def _stance_lethal(self, cm: Costmap, xy: tuple[float, float], near: float) -> np.ndarray:
+        """What a stance's trunk may not overlap: the costmap's lethal cells but the target
+        object's own, and the table tops."""
+        lethal = cm.lethal_except_near(xy, near)
+        return lethal if self.table_tops is None else lethal | self.table_tops
+
     def _lead_in(
         self, target: tuple[float, float], stance: Pose2, odom: Pose2
     ) -> tuple[bool, Pose2 | None]:
@@ -802,14 +814,11 @@ class NavigationNode(Service):
         cm, c = self.costmap, self.config.approach
         if cm is None or not c.lead_backs or not cm.objects.any():
             return False, None
-        in_map = compose(self.map_to_odom, (target[0], target[1], 0.0))
-        near = self.config.objects.max_radius + 0.05
-        objects = cm.objects_except_near(in_map[:2], near)
+        xy, near = self._target_in_map(target)
+        objects = cm.objects_except_near(xy, near)
         if not objects.any():
             return False, None
-        lethal = cm.lethal_except_near(in_map[:2], near)
-        if self.table_tops is not None:
-            lethal = lethal | self.table_tops
+        lethal = self._stance_lethal(cm, xy, near)
 
         def way_clear(p: Pose2) -> bool:
             return stance_clear(cm, objects, p, c.lead_margin)
@@ -920,11 +929,7 @@ class NavigationNode(Service):
         cm, turns = self.costmap, self.config.approach.free_turns
         if cm is None or not turns:
             return heading, False
-        in_map = compose(self.map_to_odom, (target[0], target[1], 0.0))
-        lethal = cm.lethal_except_near(in_map[:2], self.config.objects.max_radius + 0.05)
-        tops = self.table_tops
-        if tops is not None:
-            lethal = lethal | tops
+        lethal = self._stance_lethal(cm, *self._target_in_map(target))
         keepout = self.keepout_only if nose_in else None
         guard = self.config.node.approach_guard
 
