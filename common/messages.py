@@ -903,7 +903,10 @@ class TaskProgress(Message):
     time), whether it was grasped, placed (the task's own claim: the judge decides), given
     up, the robot time spent on it, the failures it cost and their reasons (one line
     each, ``step: reason``, joined with newlines) and where it was first seen (map
-    frame, m)."""
+    frame, m). ``taken_track_ids``: the track each grasp took up (the object's track at
+    that grasp, in perception's current numbering), in order. A record's own
+    ``object_track_ids`` may later name another track, where its object fell out of
+    the gripper or its box: that track is an object lying there, not taken."""
 
     stamp: float
     state: str = string(choices=TASK_STATES, default="idle")
@@ -926,6 +929,7 @@ class TaskProgress(Message):
     object_attempts: np.ndarray = array("i4", (None,), default=np.zeros(0))
     object_failures: list[str] = string_list(max_len=_MAX_TEXT, default_empty=True)
     object_positions: np.ndarray = array("f8", (None, 3), default=np.zeros((0, 3)))
+    taken_track_ids: np.ndarray = array("i4", (None,), default=np.zeros(0))
 
     def _check(self) -> None:
         _same_rows(

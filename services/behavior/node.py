@@ -149,6 +149,7 @@ def progress_message(p: Progress, stamp: float) -> m.TaskProgress:
         object_attempts=np.array([o.attempts for o in objs], np.int32),
         object_failures=["\n".join(o.failures)[:4096] for o in objs],
         object_positions=np.array([o.first_position for o in objs], float).reshape(-1, 3),
+        taken_track_ids=np.array(p.taken_tracks, np.int32),
     )
 
 

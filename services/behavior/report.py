@@ -145,6 +145,7 @@ class Progress:
     zones_searched: tuple[str, ...]
     zones_total: int
     objects: tuple[ObjectSummary, ...]
+    taken_tracks: tuple[int, ...] = ()  # the track each grasp took up (TaskProgress)
 
     @property
     def placed(self) -> int:

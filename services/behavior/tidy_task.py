@@ -801,6 +801,9 @@ class TidyTask:
         # restarts: the outages already dealt with; the life of perception's track ids
         self._handled: dict[str, int] = {}
         self.track_epoch = 0
+        # the track each grasp took up, in this epoch (TaskProgress.taken_track_ids):
+        # perception forgets them, as they lie where the objects were
+        self.taken_tracks: list[int] = []
         # the boxes on tables: what lies on the floor beside one is not in it
         self.table_boxes = [
             p for p in self.places.values() if p.kind == "deposit" and self._on_a_table(p.target)
@@ -929,6 +932,7 @@ class TidyTask:
                     )
                     for o in rep.objects
                 ),
+                taken_tracks=tuple(self.taken_tracks),
             )
 
     # ------------------------------------------------------------------ helpers
@@ -1310,9 +1314,7 @@ class TidyTask:
         held = held_step
         if step is Step.GRASP and self._holding_now():
             # the fingers closed on it before the grasp was cut short: carry it
-            with self._lock:
-                rec.grasped = True
-            self.done_tracks.add(rec.track_id)
+            self._took_up(rec)
             self.picked_from = rec.position
             held = True
         if memory_lost:
@@ -1429,6 +1431,7 @@ class TidyTask:
         class and position."""
         self.track_epoch += 1
         self.done_tracks.clear()
+        self.taken_tracks.clear()
         self.stale.clear()
 
     def _restart_failure(self, step: Step, why: str) -> bool:
@@ -2310,6 +2313,15 @@ class TidyTask:
                 rec.track_epoch = self.track_epoch  # a track of the memory as it is now
         return True
 
+    def _took_up(self, rec: ObjectRecord) -> None:
+        """``rec``'s object is in the fingers: its track now follows the gripper, and
+        perception is told to forget it (``taken_tracks``)."""
+        with self._lock:
+            rec.grasped = True
+            self.done_tracks.add(rec.track_id)
+            if rec.track_epoch == self.track_epoch:  # (an older id names nothing now)
+                self.taken_tracks.append(rec.track_id)
+
     def _grasp(self) -> Step:
         rec, probe, plan = self.target, self.probe, self.plan
         assert rec is not None and probe is not None and plan is not None
@@ -2336,10 +2348,8 @@ class TidyTask:
                 and min(_dist(r.position, rec.position), _dist(r.position, plan.position_map))
                 < self.cfg.other_class_twin
             ]
-            with self._lock:
-                rec.grasped = True
-                self.done_tracks.add(rec.track_id)  # its track now follows the gripper
-                self.done_tracks.update(twins)
+            self._took_up(rec)
+            self.done_tracks.update(twins)
             self._merge_into(rec, others)
             self.picked_from = rec.position
             self.posture = ""

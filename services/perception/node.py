@@ -203,8 +203,12 @@ class PerceptionNode(Service):
         track's spot as an obstacle (seed-120: a soup can's spot, 0.1 m from the living
         table's stand, refused every walk to that table after the can was placed). The ids
         taken up before this perception started are not its own (a restart numbers its
-        tracks afresh): the first message only says which they are."""
-        ids = {int(t) for t, g in zip(p.object_track_ids, p.object_grasped, strict=True) if g}
+        tracks afresh): the first message only says which they are. The tracks taken are
+        the ones at each grasp, not a grasped record's track now: after its object fell
+        out of the gripper or its box, that names the object lying there (paper-1,
+        2026-12-07: the cracker box's track on the floor was forgotten at once, its
+        estimate refused as of an unknown track)."""
+        ids = {int(t) for t in p.taken_track_ids}
         with self.lock:
             if self.taken is None:
                 self.taken = ids

@@ -199,20 +199,26 @@ def test_detects_remembers_and_grasps_then_survives_bad_input(
         assert track_of(objects.get(), tid) is not None
         progress = bus.publisher("behavior/progress")
 
-        def took(grasped: bool) -> m.TaskProgress:
+        def took(grasped: bool, taken: list[int]) -> m.TaskProgress:
             return m.TaskProgress(
                 stamp=robot.t, state="running", objects=[OBJECT],
                 object_track_ids=np.array([tid]), object_found_at=np.zeros(1),
                 object_grasped=np.array([grasped]), object_placed=np.zeros(1, bool),
                 object_given_up=np.zeros(1, bool), object_time_s=np.zeros(1),
                 object_attempts=np.zeros(1, np.int32), object_failures=[""],
-                object_positions=np.zeros((1, 3)),
+                object_positions=np.zeros((1, 3)), taken_track_ids=np.array(taken, np.int32),
             )  # fmt: skip
 
-        progress.publish(took(False))  # (the first message: what was taken before it started)
+        # (the first message: what was taken before it started)
+        progress.publish(took(False, [tid + 1000]))
         time.sleep(0.5)
         assert track_of(objects.get(), tid) is not None
-        progress.publish(took(True))
+        # a record grasped before whose object now lies at this track (it fell out of
+        # the gripper or its box): the track is the object lying there, kept
+        progress.publish(took(True, [tid + 1000, tid + 2000]))
+        time.sleep(0.5)
+        assert track_of(objects.get(), tid) is not None
+        progress.publish(took(True, [tid + 1000, tid + 2000, tid]))
         _wait(lambda: track_of(objects.get(), tid) is None, 10.0, "the track stayed", proc)
         assert any("track forgotten" in line for line in proc.lines)
         # 6b. what the gripper holds is no object lying there: the front camera's view of

@@ -1958,8 +1958,21 @@ def test_an_object_that_topples_out_of_its_box_onto_the_floor_is_taken_up_again(
     house = FakeHouse([box])
     house.place_topples = {"sugar_box": 1}
     task = _task(house)
+    real_grasp, taken_at_grasp = house.grasp, []
+
+    def grasp(plan):
+        taken_at_grasp.append(progress_message(task.progress(), 0.0).taken_track_ids.tolist())
+        return real_grasp(plan)
+
+    house.grasp = grasp
     report = task.run()
     assert len(house.fell_at) == 1 and house.fell_at[0][2] < 0.25  # on the floor
+    # perception is told to forget the track each grasp took up, and only that: the
+    # record, grasped before, names the track on the floor while the box lies there
+    # (paper-1, 2026-12-07: that track forgotten at once, the estimate refused)
+    assert taken_at_grasp == [[], [1]]
+    assert box.track_id == 101 and _record(report, "sugar_box").track_id == 101
+    assert task.progress().taken_tracks == (1, 101)
     rec = _record(report, "sugar_box")
     assert rec.placed and rec.dropped
     assert [f.reason for f in rec.failures] == ["fell out of tray: on the floor 0.35 m from it"]
@@ -2448,10 +2461,15 @@ def test_navigation_restart_waits_for_a_pose_and_walks_on() -> None:
 
 def test_perception_restart_looks_again_before_choosing_a_target() -> None:
     house = FakeHouse(_things(), outages=[Outage("perception", "estimate_grasp", nth=2)])
-    report = _task(house).run()
+    task = _task(house)
+    report = task.run()
     _all_home(house, report)
     killed = house.calls[house.killed_at[0]]
     after = _after_kill(house)
+    # perception numbers its tracks afresh: only the grasps since name its tracks
+    taken = task.progress().taken_tracks
+    assert len(taken) == sum(w == "grasp" for w, _ in after) == len(report.objects) - 1
+    assert set(taken) == {r.track_id for r in report.objects} - {report.objects[0].track_id}
     assert after[0] == ("wait_for_services", ("perception",))
     assert ("forget_objects", None) in after
     # a look in a search posture comes before the next estimate

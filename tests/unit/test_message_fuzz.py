@@ -303,6 +303,7 @@ def task_progress(draw: st.DrawFn) -> m.TaskProgress:
         object_attempts=rows("object_attempts"),
         object_failures=draw(st.lists(text, min_size=n, max_size=n)),
         object_positions=rows("object_positions"),
+        taken_track_ids=draw(array_strategy(_spec(m.TaskProgress, "taken_track_ids"), {0: n})),
     )
 
 
