@@ -274,9 +274,22 @@ class DepositSpec:
                 abs(self.slots[j][0] - side) < 0.05 and self.slots[j][1] > toward for j in taken
             )
 
-        def key(i: int) -> tuple[bool, float]:
+        def before_taken(i: int) -> bool:
+            side, toward = self.slots[i]
+            return any(
+                abs(self.slots[j][0] - side) < 0.05 and self.slots[j][1] < toward for j in taken
+            )
+
+        def key(i: int) -> tuple[bool, bool, float]:
             toward = self.slots[i][1]
-            return behind_taken(i), -toward if near_first else toward
+            # a tall object is lowered hanging 15-18 cm under the fingers: in front of
+            # another it comes down 2 cm from it (paper-1, 2026-12-07: the cracker box,
+            # in front of the coffee can, pushed it aside and toppled out toward the robot)
+            return (
+                behind_taken(i),
+                near_first and before_taken(i),
+                -toward if near_first else toward,
+            )
 
         return sorted(order, key=key)
 
