@@ -284,7 +284,7 @@ class DepositSpec:
             toward = self.slots[i][1]
             # a tall object is lowered hanging 15-18 cm under the fingers: in front of
             # another it comes down 2 cm from it (paper-1, 2026-12-07: the cracker box,
-            # in front of the coffee can, pushed it aside and toppled out toward the robot)
+            # in front of the coffee can, moved the can and ended on the floor)
             return (
                 behind_taken(i),
                 near_first and before_taken(i),
