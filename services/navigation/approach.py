@@ -124,6 +124,7 @@ def free_approach_heading(
     keep_margin: float,
     turn_margin: float,
     step: float = 0.1,
+    way: bool = True,
 ) -> float | None:
     """The heading nearest ``heading`` (tried in the order ``0, *turns`` about the
     target) whose stance, and the straight way from ``start`` to it, ``free(pose,
@@ -135,15 +136,15 @@ def free_approach_heading(
     table's legs; facing it from 70-80 deg the stance is clear by 3 cm but not 10, and
     eight approaches in one trial ended "an obstacle touches the footprint". The way is
     checked every ``step`` m from halfway on (near the start the robot stands where it
-    already stands). None: no such heading; the caller keeps ``heading`` and the
-    approach's guard."""
+    already stands); ``way`` False: the stance alone (a lead-in walks round to it). None:
+    no such heading; the caller keeps ``heading`` and the approach's guard."""
     tries = [(0.0, turn_margin), *((t, turn_margin) for t in turns)]
     if turn_margin > keep_margin:
         tries += [(0.0, keep_margin), *((t, keep_margin) for t in turns)]
     for turn, margin in tries:
         h = heading if turn == 0.0 else float(wrap(heading + turn))
         stance = approach_pose(target_xy, standoff, h)
-        ways = straight_way(start, stance, step, begin=0.5)[:-1]
+        ways = straight_way(start, stance, step, begin=0.5)[:-1] if way else []
         if free(stance, margin) and all(free(w, margin) for w in ways):
             return h
     return None

@@ -711,6 +711,11 @@ class NavigationNode(Service):
                                           g.pass_through)  # fmt: skip
         if isinstance(g, m.ApproachGoal):
             job.frame = "odom"
+            # every track an obstacle from the start: the layer as the last walk left it
+            # exempts those near its goal, where the stance lies (paper-4, 2026-12-07: the
+            # padlock's stance stood on the cracker box 0.36 m from it, 30 ms after the
+            # walk; the box, knocked flat, could not be grasped)
+            self._update_objects()
             t = (float(g.target[0]), float(g.target[1]))
             heading = float(g.heading)
             if g.frame == "base":
@@ -803,6 +808,17 @@ class NavigationNode(Service):
         object's own, and the table tops."""
         lethal = cm.lethal_except_near(xy, near)
         return lethal if self.table_tops is None else lethal | self.table_tops
+
+    def _stance_on_object(self, target: tuple[float, float], stance: Pose2) -> bool:
+        """Whether the trunk at ``stance`` (odometry frame) overlaps a floor object of the
+        costmap's object layer other than the approach's ``target``."""
+        cm = self.costmap
+        if cm is None or not cm.objects.any():
+            return False
+        objects = cm.objects_except_near(*self._target_in_map(target))
+        return bool(objects.any()) and not stance_clear(
+            cm, objects, compose(self.map_to_odom, stance), 0.0
+        )
 
     def _lead_in(
         self, target: tuple[float, float], stance: Pose2, odom: Pose2
@@ -936,9 +952,25 @@ class NavigationNode(Service):
         def free(pose: Pose2, margin: float) -> bool:
             return stance_clear(cm, lethal, compose(self.map_to_odom, pose), margin, keepout)
 
-        turned = free_approach_heading(
-            free, odom, target, standoff, heading, turns, guard, self.config.approach.free_margin
-        )
+        margin = self.config.approach.free_margin
+        turned = free_approach_heading(free, odom, target, standoff, heading, turns, guard, margin)
+        if turned is None and self._stance_on_object(
+            target, approach_pose(target, standoff, heading)
+        ):
+            # no heading is clear with its straight way, and the asked stance stands on a
+            # floor object: the nearest whose stance is clear, the lead-in walks round to
+            # it (``_lead_in``). Kept, the approach walked onto the object and knocked it
+            # over (paper-4, 2026-12-07: the cracker box, beside the padlock)
+            turned = free_approach_heading(
+                free, odom, target, standoff, heading, turns, guard, margin, way=False
+            )
+            if turned is not None:
+                self.log.info(
+                    "approach stance turned",
+                    by_deg=round(math.degrees(wrap(turned - heading)), 1),
+                    why="at the heading asked the stance stands on a floor object",
+                )
+                return turned, False
         if turned is None:
             stance = approach_pose(target, standoff, heading)
             far = math.hypot(stance[0] - odom[0], stance[1] - odom[1])

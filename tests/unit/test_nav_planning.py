@@ -1094,3 +1094,25 @@ def test_lead_in_pose_tries_its_backs_in_order_and_needs_the_way_in_clear():
         False,
         None,
     )
+
+
+def test_a_stance_standing_on_a_floor_object_turns_to_a_clear_one():
+    # paper-4 (2026-12-07), map frame from the log: facing the padlock from where the walk
+    # ended, the stance stood 0.17 m from a standing cracker box. No heading had a clear
+    # straight way too (the way from there passes the box), so the asked one was kept and
+    # the box was knocked flat. Now the nearest heading whose stance is clear is taken;
+    # the lead-in walks round the box to it.
+    node = _node_on_the_house_map()
+    pad, box, start, standoff = (2.71, 2.24), (2.89, 2.54), (3.50, 2.71), 0.358
+    asked = math.atan2(pad[1] - start[1], pad[0] - start[0])
+    here = (*start, 2.68)  # (as logged: the walk's heading, 57 deg off the asked one)
+    assert node._free_heading(pad, standoff, asked, here) == (asked, False)  # nothing there
+    node.costmap.set_objects([(*box, 0.13)])
+    assert node._stance_on_object(pad, approach_pose(pad, standoff, asked))
+    heading, meets = node._free_heading(pad, standoff, asked, here)
+    stance = approach_pose(pad, standoff, heading)
+    assert not meets and heading != asked
+    assert not node._stance_on_object(pad, stance)
+    assert math.dist(stance[:2], box) > 0.4
+    # its straight way from there is clear of the box: no lead-in needed
+    assert node._lead_in(pad, stance, here) == (False, None)
