@@ -891,7 +891,7 @@ class HandleRequest(Message):
 TASK_STATES: tuple[str, ...] = ("idle", "running", "done", "budget", "canceled", "failed")
 
 
-@message("qm.TaskProgress", (1, 0))
+@message("qm.TaskProgress", (1, 1))
 class TaskProgress(Message):
     """The tidy-up task's account of itself (``behavior/progress`` at every step change and
     about once a second; also the result of ``behavior/action/tidy_up``): ``state`` (one of
@@ -903,7 +903,7 @@ class TaskProgress(Message):
     time), whether it was grasped, placed (the task's own claim: the judge decides), given
     up, the robot time spent on it, the failures it cost and their reasons (one line
     each, ``step: reason``, joined with newlines) and where it was first seen (map
-    frame, m). ``taken_track_ids``: the track each grasp took up (the object's track at
+    frame, m). ``taken_track_ids`` (1.1: added): the track each grasp took up (the object's track at
     that grasp, in perception's current numbering), in order. A record's own
     ``object_track_ids`` may later name another track, where its object fell out of
     the gripper or its box: that track is an object lying there, not taken."""
