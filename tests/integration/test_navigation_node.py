@@ -320,6 +320,49 @@ def test_a_floor_object_in_perceptions_memory_is_a_costmap_obstacle(nav):
     _wait(cleared, 20.0, "the object never left the costmap", (proc,))
 
 
+def _floor_object(
+    bus, robot, proc, track: tuple[int, str, np.ndarray, float, tuple]
+) -> Callable[[], None]:
+    """Publish perception's memory holding one floor object (id, class, map xy, centroid
+    height, extents) until navigation's costmap marks it; returns the publishing call
+    (the memory is sent again and again, as perception does)."""
+    track_id, label, xy, z, size = track
+    pub = bus.publisher("perception/objects")
+    odom_xy = robot.odom_of((*xy, 0.0))
+
+    def publish() -> None:
+        pub.publish(_one_track(track_id, label, odom_xy[:2], xy, z, size))
+
+    costmap = bus.latest("navigation/costmap")
+
+    def marked() -> bool:
+        publish()
+        g = costmap.get()
+        if g is None:
+            return False
+        c = np.floor((xy - g.origin[:2]) / g.resolution).astype(int)
+        return int(g.data[c[1], c[0]]) == 100
+
+    _wait(marked, 20.0, f"the {label} never reached the costmap", (proc,))
+    return publish
+
+
+def _approach_past(bus, robot, proc, goal: m.ApproachGoal, publish, xy: np.ndarray) -> float:
+    """Run ``goal`` to success, publishing the memory meanwhile; the nearest the robot's
+    true centre came to ``xy``."""
+    h = _send(bus, "approach", goal)
+    assert h.accepted, h.reason
+    nearest = math.inf
+    deadline = time.monotonic() + 90.0
+    while (r := h.result(timeout=0.05)) is None:
+        publish()
+        x, y, _ = robot.pose
+        nearest = min(nearest, math.hypot(x - xy[0], y - xy[1]))
+        assert time.monotonic() < deadline, proc.lines[-20:]
+    assert r.status == "succeeded", (r.reason, robot.pose, proc.lines[-12:])
+    return nearest
+
+
 def test_an_approach_whose_straight_way_meets_a_floor_object_walks_round_it_first(nav):
     # paper-5 (2026-12-07): the straight way to a bowl on the living table's edge passed
     # 0.2 m beside a soup can on the floor, below the LiDAR's plane; the can was kicked
@@ -331,39 +374,15 @@ def test_an_approach_whose_straight_way_meets_a_floor_object_walks_round_it_firs
     target, heading, standoff = (1.9, 1.95), math.pi / 2, 0.36
     pose = bus.latest("navigation/pose")
     _wait(lambda: pose.get() is not None, 30.0, "no pose", (proc,))
-    pub = bus.publisher("perception/objects")
-    odom_can = robot.odom_of((*can, 0.0))
-
-    def publish() -> None:
-        size = (0.067, 0.067, 0.1)
-        pub.publish(_one_track(3, "tomato_soup_can", odom_can[:2], can, 0.05, size))
-
-    costmap = bus.latest("navigation/costmap")
-
-    def marked() -> bool:
-        publish()
-        g = costmap.get()
-        if g is None:
-            return False
-        c = np.floor((can - g.origin[:2]) / g.resolution).astype(int)
-        return int(g.data[c[1], c[0]]) == 100
-
-    _wait(marked, 20.0, "the can never reached the costmap", (proc,))
+    publish = _floor_object(
+        bus, robot, proc, (3, "tomato_soup_can", can, 0.05, (0.067, 0.067, 0.1))
+    )
     t = robot.odom_of((*target, 0.0))
     h_odom = robot.odom_of((*target, heading))[2]
     goal = m.ApproachGoal(stamp=0.0, target=np.array(t[:2]), frame="odom", standoff=standoff,
                           heading=float(h_odom), tolerance_xy=0.02,
                           tolerance_yaw=0.035)  # fmt: skip
-    h = _send(bus, "approach", goal)
-    assert h.accepted, h.reason
-    nearest = math.inf
-    deadline = time.monotonic() + 90.0
-    while (r := h.result(timeout=0.05)) is None:
-        publish()
-        x, y, _ = robot.pose
-        nearest = min(nearest, math.hypot(x - can[0], y - can[1]))
-        assert time.monotonic() < deadline, proc.lines[-20:]
-    assert r.status == "succeeded", (r.reason, robot.pose, proc.lines[-12:])
+    nearest = _approach_past(bus, robot, proc, goal, publish, can)
     # the feet's reach sideways (0.165 m from the middle) and the can's radius (0.034 m):
     # the straight way passed over it (0.02 m)
     assert nearest > 0.2, nearest
@@ -388,23 +407,7 @@ def test_an_approach_right_after_a_walk_keeps_its_stance_off_a_floor_object(nav)
     walk_goal = (1.90, 1.66, math.atan2(target[1] - 1.66, target[0] - 1.90))
     pose = bus.latest("navigation/pose")
     _wait(lambda: pose.get() is not None, 30.0, "no pose", (proc,))
-    pub = bus.publisher("perception/objects")
-    odom_box = robot.odom_of((*box, 0.0))
-
-    def publish() -> None:
-        pub.publish(_one_track(4, "cracker_box", odom_box[:2], box, 0.105, (0.16, 0.06, 0.21)))
-
-    costmap = bus.latest("navigation/costmap")
-
-    def marked() -> bool:
-        publish()
-        g = costmap.get()
-        if g is None:
-            return False
-        c = np.floor((box - g.origin[:2]) / g.resolution).astype(int)
-        return int(g.data[c[1], c[0]]) == 100
-
-    _wait(marked, 20.0, "the box never reached the costmap", (proc,))
+    publish = _floor_object(bus, robot, proc, (4, "cracker_box", box, 0.105, (0.16, 0.06, 0.21)))
     h = _send(bus, "navigate_to", m.NavigateGoal(stamp=0.0, pose=np.array(walk_goal)))
     assert h.accepted, h.reason
     while (r := h.result(timeout=0.05)) is None:
@@ -413,16 +416,7 @@ def test_an_approach_right_after_a_walk_keeps_its_stance_off_a_floor_object(nav)
     t = robot.odom_of((*target, 0.0))
     goal = m.ApproachGoal(stamp=0.0, target=np.array(t[:2]), frame="odom", standoff=0.36,
                           face_target=True, tolerance_xy=0.02, tolerance_yaw=0.035)  # fmt: skip
-    h = _send(bus, "approach", goal)
-    assert h.accepted, h.reason
-    nearest = math.inf
-    deadline = time.monotonic() + 90.0
-    while (r := h.result(timeout=0.05)) is None:
-        publish()
-        x, y, _ = robot.pose
-        nearest = min(nearest, math.hypot(x - box[0], y - box[1]))
-        assert time.monotonic() < deadline, proc.lines[-20:]
-    assert r.status == "succeeded", (r.reason, robot.pose, proc.lines[-12:])
+    nearest = _approach_past(bus, robot, proc, goal, publish, box)
     # facing the target from where the walk ended, the trunk's middle stood 0.17 m from
     # the box's middle
     assert nearest > 0.35, nearest
