@@ -903,10 +903,10 @@ class TaskProgress(Message):
     time), whether it was grasped, placed (the task's own claim: the judge decides), given
     up, the robot time spent on it, the failures it cost and their reasons (one line
     each, ``step: reason``, joined with newlines) and where it was first seen (map
-    frame, m). ``taken_track_ids`` (1.1: added): the track each grasp took up (the object's track at
-    that grasp, in perception's current numbering), in order. A record's own
-    ``object_track_ids`` may later name another track, where its object fell out of
-    the gripper or its box: that track is an object lying there, not taken."""
+    frame, m). ``taken_track_ids`` (1.1: added): the track each grasp took up (the
+    object's track at that grasp, in perception's current numbering), in order. A
+    record's own ``object_track_ids`` may later name another track, where its object
+    fell out of the gripper or its box: that track is an object lying there, not taken."""
 
     stamp: float
     state: str = string(choices=TASK_STATES, default="idle")

@@ -268,16 +268,12 @@ class DepositSpec:
             return order
         near_first = height > self.tall_above
 
-        def behind_taken(i: int) -> bool:
+        def taken_ahead(i: int, sign: float) -> bool:
+            """A slot of the same side taken nearer the robot (``sign`` 1) or farther."""
             side, toward = self.slots[i]
             return any(
-                abs(self.slots[j][0] - side) < 0.05 and self.slots[j][1] > toward for j in taken
-            )
-
-        def before_taken(i: int) -> bool:
-            side, toward = self.slots[i]
-            return any(
-                abs(self.slots[j][0] - side) < 0.05 and self.slots[j][1] < toward for j in taken
+                abs(self.slots[j][0] - side) < 0.05 and sign * (self.slots[j][1] - toward) > 0.0
+                for j in taken
             )
 
         def key(i: int) -> tuple[bool, bool, float]:
@@ -286,8 +282,8 @@ class DepositSpec:
             # another it comes down 2 cm from it (paper-1, 2026-12-07: the cracker box,
             # in front of the coffee can, moved the can and ended on the floor)
             return (
-                behind_taken(i),
-                near_first and before_taken(i),
+                taken_ahead(i, 1.0),
+                near_first and taken_ahead(i, -1.0),
                 -toward if near_first else toward,
             )
 

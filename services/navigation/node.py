@@ -954,6 +954,7 @@ class NavigationNode(Service):
 
         margin = self.config.approach.free_margin
         turned = free_approach_heading(free, odom, target, standoff, heading, turns, guard, margin)
+        why = "at the heading asked the stance meets an obstacle"
         if turned is None and self._stance_on_object(
             target, approach_pose(target, standoff, heading)
         ):
@@ -964,13 +965,7 @@ class NavigationNode(Service):
             turned = free_approach_heading(
                 free, odom, target, standoff, heading, turns, guard, margin, way=False
             )
-            if turned is not None:
-                self.log.info(
-                    "approach stance turned",
-                    by_deg=round(math.degrees(wrap(turned - heading)), 1),
-                    why="at the heading asked the stance stands on a floor object",
-                )
-                return turned, False
+            why = "at the heading asked the stance stands on a floor object"
         if turned is None:
             stance = approach_pose(target, standoff, heading)
             far = math.hypot(stance[0] - odom[0], stance[1] - odom[1])
@@ -984,7 +979,7 @@ class NavigationNode(Service):
             self.log.info(
                 "approach stance turned",
                 by_deg=round(math.degrees(wrap(turned - heading)), 1),
-                why="at the heading asked the stance meets an obstacle",
+                why=why,
             )
         return turned, False
 
