@@ -809,15 +809,21 @@ class NavigationNode(Service):
         lethal = cm.lethal_except_near(xy, near)
         return lethal if self.table_tops is None else lethal | self.table_tops
 
+    def _other_objects(self, target: tuple[float, float]) -> np.ndarray | None:
+        """The costmap's object layer without the approach's ``target`` (odometry frame);
+        None when it holds nothing else."""
+        cm = self.costmap
+        if cm is None or not cm.objects.any():
+            return None
+        objects = cm.objects_except_near(*self._target_in_map(target))
+        return objects if objects.any() else None
+
     def _stance_on_object(self, target: tuple[float, float], stance: Pose2) -> bool:
         """Whether the trunk at ``stance`` (odometry frame) overlaps a floor object of the
         costmap's object layer other than the approach's ``target``."""
-        cm = self.costmap
-        if cm is None or not cm.objects.any():
-            return False
-        objects = cm.objects_except_near(*self._target_in_map(target))
-        return bool(objects.any()) and not stance_clear(
-            cm, objects, compose(self.map_to_odom, stance), 0.0
+        objects = self._other_objects(target)
+        return objects is not None and not stance_clear(
+            self.costmap, objects, compose(self.map_to_odom, stance), 0.0
         )
 
     def _lead_in(
@@ -828,13 +834,10 @@ class NavigationNode(Service):
         the map pose to walk to first (:func:`approach.lead_in_pose`): clear of the
         costmap's obstacles, table tops and objects, and where the planner may stand."""
         cm, c = self.costmap, self.config.approach
-        if cm is None or not c.lead_backs or not cm.objects.any():
+        objects = self._other_objects(target) if c.lead_backs else None
+        if cm is None or objects is None:
             return False, None
-        xy, near = self._target_in_map(target)
-        objects = cm.objects_except_near(xy, near)
-        if not objects.any():
-            return False, None
-        lethal = self._stance_lethal(cm, xy, near)
+        lethal = self._stance_lethal(cm, *self._target_in_map(target))
 
         def way_clear(p: Pose2) -> bool:
             return stance_clear(cm, objects, p, c.lead_margin)
