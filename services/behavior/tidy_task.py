@@ -1713,6 +1713,10 @@ class TidyTask:
         ]
         if lost:
             self.relooked.update(id(r) for r in lost)
+            names = ", ".join(
+                f"{r.label} at ({r.position[0]:.2f}, {r.position[1]:.2f})" for r in lost
+            )
+            self._say(f"{self._describe(Step.GO_TO_VIEWPOINT)}: looking again for {names}")
             return False
         # only views since the last time an object fell or was set down count: the cells
         # seen before show nothing of where it lies now (paper-2, 2026-12-06: the spoon

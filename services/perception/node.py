@@ -96,6 +96,11 @@ class Processed:
     wall: float = field(default_factory=time.monotonic)
 
 
+def _xyz(p: np.ndarray) -> str:
+    """A point as the log writes it: ``[x, y, z]`` to the centimetre."""
+    return f"[{p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f}]"
+
+
 def seen_grid(area: SeenArea, stamp: float) -> m.SeenGrid:
     """``area`` as the ``perception/seen`` message (copies)."""
     x0, y0 = area.origin
@@ -361,11 +366,15 @@ class PerceptionNode(Service):
                 self.memory.update(obs, view, img.stamp, blind=held)
                 fresh = self.memory.confirmed_ids() - before  # (copies of these only)
                 new = [t for i in sorted(fresh) if (t := self.memory.get(i)) is not None]
+                gone = list(self.memory.missed_out)
             self._mark_seen(cam, img, cam_p, cam_q, np.asarray(base[0])[:2])
             for t in new:  # where a track comes from, for whoever reads a trial's log
                 self.log.info("track confirmed", id=t.id, cls=t.class_name, camera=cam,
-                              odom=f"[{t.centroid[0]:.2f}, {t.centroid[1]:.2f}, "
-                                   f"{t.centroid[2]:.2f}]", seen=t.observations)  # fmt: skip
+                              odom=_xyz(t.centroid), seen=t.observations)  # fmt: skip
+            for t, far in gone:  # ... and where it went from the memory
+                self.log.info("track dropped: not seen where it was expected", id=t.id,
+                              cls=t.class_name, camera=cam, range_m=round(far, 2),
+                              odom=_xyz(t.centroid), seen=t.observations)  # fmt: skip
         where = {id(x.detection): x for x in located}
         n = len(dets)
         cents = np.zeros((n, 3))

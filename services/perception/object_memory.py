@@ -251,6 +251,11 @@ class ObjectMemory:
         self._next_id = 1
         self._merged_into: dict[int, int] = {}  # this update's merges: dropped -> kept
         self.rejected = 0  # malformed observations dropped (for the node's counters)
+        # the last update's confirmed tracks removed for misses, with their distance (m)
+        # from the camera: said in the node's log, so a trial's log tells where an object
+        # found once went from the memory (paper-1, 2026-12-07: a Lego confirmed four
+        # times, gone each time before the task came to it, never taken up)
+        self.missed_out: list[tuple[Track, float]] = []
 
     # ------------------------------------------------------------------ queries
     def __len__(self) -> int:
@@ -325,6 +330,7 @@ class ObjectMemory:
         where the cameras saw it (the held can was filed as a floor object and walked
         back to in a paper-5 trial, 2026-12-07)."""
         cfg = self.config
+        self.missed_out = []
         obs: list[Observation] = []
         for raw in observations:
             o = _as_observation(raw)
@@ -511,6 +517,9 @@ class ObjectMemory:
             t = self._tracks[i]
             t.misses += 1
             if t.misses >= (cfg.max_misses if t.confirmed else cfg.tentative_max_misses):
+                if t.confirmed:
+                    far = float(np.linalg.norm(t.centroid - np.asarray(view.position)))
+                    self.missed_out.append((t, far))
                 del self._tracks[i]
 
     def _merge(self, seen_now: set[int]) -> None:

@@ -1824,6 +1824,8 @@ def test_a_view_where_a_found_object_is_left_undone_is_not_skipped() -> None:
                        position=(*spot, 0.03), t_found=10.0)  # fmt: skip
     task.report.objects.append(rec)
     assert not task._view_seen(vp)
+    # and says so (paper-1, 2026-12-07: a Lego's look again left no trace in the log)
+    assert f"looking again for rubiks_cube at ({spot[0]:.2f}, {spot[1]:.2f})" in task.report.step
     # once: paper-1 (2026-12-07) walked nine views after its last object for two
     # phantoms' records, every floor and table view whose band held their spots
     assert task._view_seen(vp)

@@ -136,9 +136,15 @@ def test_removed_after_n_misses_in_view() -> None:
     t = mem.get(tid)
     assert t.misses == 1 and t.confidence < c0
     mem.update([], view(depth=depth_of(2.5)), 1.1)
-    assert mem.get(tid).misses == 2
+    assert mem.get(tid).misses == 2 and mem.missed_out == []
     mem.update([], view(depth=depth_of(2.5)), 1.2)
     assert mem.get(tid) is None and mem.tracks() == []
+    # the update that removed it names it, with its distance from the camera (for the log)
+    ((gone, far),) = mem.missed_out
+    assert gone.id == tid and gone.class_name == "cup"
+    assert far == pytest.approx(float(np.linalg.norm(p - view().position)), abs=0.01)
+    mem.update([], view(depth=depth_of(2.5)), 1.3)
+    assert mem.missed_out == []  # (the next update's own only)
 
 
 def test_a_detection_resets_the_misses() -> None:
