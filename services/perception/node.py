@@ -139,6 +139,9 @@ class PerceptionNode(Service):
         unknown = [c for c in self.detector.classes if c not in self.catalogue.objects]
         if unknown:
             raise ValueError(f"detector classes not in the object catalogue: {unknown}")
+        unknown = sorted(set(cfg.memory.miss_ranges) - set(self.catalogue.objects))
+        if unknown:
+            raise ValueError(f"memory.miss_ranges names classes not in the catalogue: {unknown}")
         self.memory = ObjectMemory(cfg.memory)
         self.seen = SeenArea(cfg.seen)
         self.t_seen = -math.inf

@@ -90,6 +90,14 @@ class MemoryConfig:
     # override it per camera.
     min_range: float = 0.15
     max_range: float = 3.0
+    # m from the camera, per class: farther, a track of that class in view and not
+    # detected is no miss (the detector does not find it that far). Measured with
+    # ``python -m quadmanip.testbench.detection_range``: the front camera found a Lego in
+    # every view to 2 m and in none at 2.5 m (a padlock: 1.25 m, none at 2 m), and the
+    # memory missed them out to max_range: a Lego confirmed four times was dropped each
+    # time before the task came to it (paper-1, 2026-12-07). Classes not named: the camera's
+    # range (max_range) alone.
+    miss_ranges: dict[str, float] = field(default_factory=dict)
     # The centroid must project at least this many pixels inside the image border.
     image_margin: float = 8.0
     # Hidden when the depth at the track's pixel is closer than the centroid by more than
@@ -117,6 +125,9 @@ class MemoryConfig:
             raise ValueError("MemoryConfig: min_gate must not exceed max_gate")
         if not 0.0 <= self.min_range < self.max_range:
             raise ValueError("MemoryConfig: need 0 <= min_range < max_range")
+        bad = {k: v for k, v in self.miss_ranges.items() if not (math.isfinite(v) and v > 0.0)}
+        if bad:
+            raise ValueError(f"MemoryConfig.miss_ranges must be finite and > 0, got {bad}")
         if self.confirm_hits < 1 or self.max_misses < 1 or self.tentative_max_misses < 1:
             raise ValueError("MemoryConfig: confirm_hits, max_misses, tentative_max_misses >= 1")
         if not 0.0 < self.smoothing <= 1.0 or not 0.0 < self.miss_decay <= 1.0:
@@ -511,15 +522,17 @@ class ObjectMemory:
         cfg = self.config
         pts = np.array([self._tracks[i].centroid for i in ids])
         sizes = np.array([float(np.max(self._tracks[i].extent)) for i in ids])
-        for i, vis in zip(ids, self.visible(pts, sizes, view), strict=True):
+        far = np.linalg.norm(pts - np.asarray(view.position, dtype=float), axis=1)
+        reach = np.array([cfg.miss_ranges.get(self._tracks[i].class_name, math.inf) for i in ids])
+        seen = self.visible(pts, sizes, view) & (far <= reach)
+        for i, vis, dist in zip(ids, seen, far, strict=True):
             if not vis:
                 continue
             t = self._tracks[i]
             t.misses += 1
             if t.misses >= (cfg.max_misses if t.confirmed else cfg.tentative_max_misses):
                 if t.confirmed:
-                    far = float(np.linalg.norm(t.centroid - np.asarray(view.position)))
-                    self.missed_out.append((t, far))
+                    self.missed_out.append((t, float(dist)))
                 del self._tracks[i]
 
     def _merge(self, seen_now: set[int]) -> None:
