@@ -21,6 +21,7 @@ import json
 import math
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import mujoco
@@ -128,8 +129,7 @@ def main(argv: list[str] | None = None) -> int:
         # a class never found in every view even at the first range misses nowhere farther
         print(f"{name} = {max(row['found_to_m'], RANGES[0]):.2f}")
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(res, f, indent=1)
+        Path(args.json).write_text(json.dumps(res, indent=1))
     return 0
 
 
