@@ -49,7 +49,9 @@ from quadmanip.services.behavior.report import ObjectRecord, Progress, TaskRepor
 from quadmanip.services.behavior.robot_api import GraspPlan, HandlePlan, Outcome, SeenObject
 from quadmanip.services.behavior.service_watch import ServiceWatch
 from quadmanip.services.behavior.tidy_task import (
+    Step,
     TidyTask,
+    _clear_of,
     _in_box,
     classes_from_catalogue,
     knowledge_problems,
@@ -3427,3 +3429,39 @@ def test_a_tall_box_lying_on_a_table_is_probed_from_above_after_a_side_probe_fin
     rec = _record(report, "sugar_box")
     assert not rec.placed and not rec.top_probe
     assert {cam for label, cam in house.probed_with if label == "sugar_box"} == {"front_camera"}
+
+
+def test_a_viewpoint_by_an_object_standing_on_the_floor_is_moved_clear_of_it() -> None:
+    # paper-4, 2026-12-07: the walk to a living-table view ended 0.38 m from a standing
+    # cracker box, turned there on the spot for 2 s and knocked it flat
+    house = FakeHouse(_things())
+    task = _task(house)
+    zone = PLACES["living_table"]
+    task.zone = zone
+    task.viewpoints = zone_viewpoints(
+        zone.stand, (zone.target[0], zone.target[1]), zone.size, CFG.search[zone.kind]
+    )
+    vp = task.viewpoints[0]
+    box = (vp[0] + 0.38 * math.cos(0.3), vp[1] + 0.38 * math.sin(0.3), 0.1)
+    house.memory[9] = SeenObject(9, "cracker_box", box)
+    assert task._go_to_viewpoint() == Step.LOOK
+    goal = _calls(house, "navigate_to")[-1]
+    assert math.dist(goal[:2], box[:2]) == pytest.approx(CFG.task.view_clearance)
+    assert goal[2] == vp[2]  # the view's heading kept
+    # moved straight away from the box: no farther than needed
+    assert math.dist(goal[:2], vp[:2]) == pytest.approx(CFG.task.view_clearance - 0.38)
+
+
+def test_a_point_clear_of_every_object_is_found_or_none_is() -> None:
+    c = 0.55
+    assert _clear_of((0.0, 0.0, 1.0), [(2.0, 0.0, 0.0)], c) == (0.0, 0.0, 1.0)
+    # between two objects 1.4 m apart: the pose moves off both
+    moved = _clear_of((0.1, 0.2, 0.0), [(-0.7, 0.0, 0.0), (0.7, 0.0, 0.0)], c)
+    assert moved is not None
+    assert min(math.dist(moved[:2], p[:2]) for p in ((-0.7, 0, 0), (0.7, 0, 0))) >= c - 1e-9
+    # on a ring of objects closer together than the clearance: nowhere near it will do
+    ring = [
+        (0.4 * math.cos(a), 0.4 * math.sin(a), 0.0)
+        for a in np.linspace(0, 2 * math.pi, 8, endpoint=False)
+    ]
+    assert _clear_of((0.0, 0.0, 0.0), ring, c) is None
