@@ -497,6 +497,16 @@ class TaskConfig:
     # ``place_back_off`` and tries the place's next slot.
     place_blocked_progress: float = 0.01
     place_back_off: float = 0.25
+    farther_stance: float = 0.02  # m: a slot stood at this much farther back counts so
+    # m: a held object given up is put down on the floor ahead only where that spot (and
+    # the arm's way to it) lies this far outside every piece of furniture of the places
+    # file; the robot backs off (in put_down_back_step steps, up to put_down_back_max)
+    # until it does. paper-5 (2026-12-08): a coffee can given up at the tray was put down
+    # 0.36 m ahead, under the deposit table's top: the arm met the top and the robot
+    # pitched 34 deg nose down and fell.
+    put_down_clearance: float = 0.15
+    put_down_back_step: float = 0.2
+    put_down_back_max: float = 1.0
     verify_radius: float = 0.2  # m: a track of the class this near the release point saw it
     let_go_wait: float = 1.0  # s for the gripper to report empty after a place
     # Restarts of the robot's services (module docstring).
@@ -1030,8 +1040,13 @@ class TidyTask:
         # already_holding took the coffee can placed before it for still held)
         self.last_released = None
         self.t_moved = self.robot.now()
-        for back in (0.0, self.cfg.step_back):  # once more from a step back (the arm
-            pose = self.robot.pose()  # may have been stopped by furniture ahead)
+        pose = self.robot.pose()
+        if pose is None:
+            return
+        clear = self._put_down_back(pose)
+        # once more from a step back (the arm may have been stopped by furniture ahead)
+        for back in (clear, clear + self.cfg.step_back):
+            pose = self.robot.pose()
             if pose is None:
                 return
             if back:
@@ -1045,6 +1060,26 @@ class TidyTask:
             if self.robot.place(spot, None).ok or self.robot.holding() is False:
                 return
             self.posture = ""  # the arm stopped wherever it was blocked
+
+    def _put_down_back(self, pose: Pose2) -> float:
+        """How far to back off from ``pose`` so that the floor spot ``probe_standoff``
+        ahead, and the way the arm reaches to it from the trunk's front, lie
+        ``put_down_clearance`` outside every piece of furniture of the places file (the
+        floor zones are none); ``put_down_back_max`` when no distance does."""
+        furniture = [
+            p for p in self.places.values() if p.kind != "search_floor" and min(p.size) > 0
+        ]
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        ahead = self.cfg.probe_standoff
+        # the trunk's front (half its length) to a little past the spot
+        reach = [0.2 + (ahead + 0.1 - 0.2) * k / 4 for k in range(5)]
+        back = 0.0
+        while back < self.cfg.put_down_back_max:
+            pts = [(pose[0] + (a - back) * c, pose[1] + (a - back) * s) for a in reach]
+            if not any(f.covers(q, self.cfg.put_down_clearance) for f in furniture for q in pts):
+                return back
+            back += self.cfg.put_down_back_step
+        return self.cfg.put_down_back_max
 
     def _walk_to_stand(self, place: Place) -> Outcome:
         """Walk to ``stage_back`` behind ``place``'s stand, facing its way; the caller's
@@ -2535,8 +2570,12 @@ class TidyTask:
         if not out.ok and FOOTPRINT in out.reason:
             # this slot's stance meets the furniture (seed-114: the tray's far row, a leg of
             # its table by the trunk's corner; the same stance was walked to again, then
-            # stepped into, and the cracker box was put down): the next slot, at once
-            self.slot_skips[id(rec)] = self.slot_skips.get(id(rec), 0) + 1
+            # stepped into, and the cracker box was put down): a slot stood at farther
+            # back, at once (paper-5, 2026-12-08: the coffee can's far-row stance has the
+            # trunk's front 2 cm inside the approach's guard from the deposit table's
+            # edge; the other far-row slot, stood at as near, was blocked too, and so was
+            # the next try: the can was given up)
+            self._skip_to_farther_stance(dep, place, point)
             point, heading, yaw = self._release_point()
             self._say(f"{rec.name}: the slot's stance is blocked: the next slot")
             out = self.robot.approach(
@@ -2601,6 +2640,25 @@ class TidyTask:
             self._dropped(f"place: {out.reason}; let go elsewhere", Step.PLACE)
             return Step.GO_TO_VIEWPOINT
         return self._give_up_or(Step.PLACE, f"place: {out.reason}", Step.PLACE)
+
+    def _skip_to_farther_stance(self, dep: DepositSpec, place: Place, point: Point3) -> None:
+        """Pass over the target's slots up to the first whose stance stands at least
+        ``farther_stance`` behind the one for ``point`` (along the place's heading); none
+        does: the next slot."""
+        rec = self.target
+        assert rec is not None
+        h = place.stand[2]
+
+        def depth(p: Point3) -> float:  # of the stance, along the heading from the target
+            along = (p[0] - place.target[0]) * math.cos(h) + (p[1] - place.target[1]) * math.sin(h)
+            return along - dep.stance(place, p)
+
+        blocked, first = depth(point), self.slot_skips.get(id(rec), 0)
+        for k in range(1, max(len(dep.slots), 1) + 1):
+            self.slot_skips[id(rec)] = first + k
+            if depth(self._release_point()[0]) <= blocked - self.cfg.farther_stance:
+                return
+        self.slot_skips[id(rec)] = first + 1
 
     def _stance_blocked(self, point: Point3, heading: float, why: str) -> Step:
         """Something stops the robot short of the place's stance (an object at its feet,

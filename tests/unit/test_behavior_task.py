@@ -3465,3 +3465,51 @@ def test_a_point_clear_of_every_object_is_found_or_none_is() -> None:
         for a in np.linspace(0, 2 * math.pi, 8, endpoint=False)
     ]
     assert _clear_of((0.0, 0.0, 0.0), ring, c) is None
+
+
+def test_a_far_row_stance_that_meets_the_table_takes_the_near_row_at_once() -> None:
+    # paper-5, 2026-12-08: both far-row stances of the tray (the trunk's front 2 cm inside
+    # the approach's guard from the deposit table's edge) stopped the coffee can's
+    # approach; the next try stood at them again, and the can was given up
+    house = FakeHouse([Thing("coffee_can", 2, (3.2, 1.9, 0.07))])
+    tray = PLACES["tray"]
+    h = tray.stand[2]
+
+    def toward(p: Sequence[float]) -> float:  # toward the robot from the tray's target
+        return -((p[0] - tray.target[0]) * math.cos(h) + (p[1] - tray.target[1]) * math.sin(h))
+
+    house.touching = lambda xy: toward(xy) < 0.03  # the far row's release points
+    report = _task(house).run()
+    assert report.outcome == "done", report.reason
+    assert house.things[2].released_in == "tray"
+    assert _record(report, "coffee_can").failures == []
+    ((spot, _),) = _calls(house, "place")
+    assert toward(spot) > 0.05  # the near row
+    tray_approaches = [
+        a for a in _calls(house, "approach") if math.dist(a[0], tray.target[:2]) < 0.5
+    ]
+    assert len(tray_approaches) == 2  # the far row's, blocked, then the near row's
+
+
+def test_a_given_up_object_is_put_down_clear_of_the_furniture_ahead() -> None:
+    # paper-5, 2026-12-08: the coffee can given up at the tray's stance was put down
+    # 0.36 m ahead, under the deposit table's top; the arm met it and the robot fell
+    can = Thing("coffee_can", 2, (3.2, 1.9, 0.07))
+    house = FakeHouse([can])
+    task = _task(house)
+    table = PLACES["deposit_table"]
+    house.at = (7.0, 3.23, math.pi / 2)  # the tray's far-row stance, 0.22 m from the edge
+    house.held = can
+    task._put_down()
+    ((spot, _),) = _calls(house, "place")
+    clear = CFG.task.put_down_clearance
+    assert not table.covers(spot, clear)
+    (back,) = _calls(house, "approach")  # it backed off first, straight back
+    assert house.at[1] < 3.23 - 0.3 and house.at[0] == pytest.approx(7.0, abs=1e-6)
+    assert back[2] == pytest.approx(math.pi / 2)
+    # in the open, it is put down where it stands
+    house = FakeHouse([can])
+    task = _task(house)
+    house.at, house.held = (2.0, 1.5, 0.0), can
+    task._put_down()
+    assert _calls(house, "approach") == [] and len(_calls(house, "place")) == 1
