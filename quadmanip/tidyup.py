@@ -258,7 +258,7 @@ class TidyReport:
                 f"controller: {c['missed_ticks']:.0f} ticks missed, {c['late_answers']:.0f} "
                 f"answers late, {c['mpc_overruns']:.0f} MPC overruns, "
                 f"{c['degraded_episodes']:.0f} degraded episodes, "
-                f"{c['leg_timeouts']:.0f} leg timeouts"
+                f"{c['leg_timeouts']:.0f} leg timeouts, {c.get('trips', 0):.0f} safety trips"
             )
         per = s["sim_time_per_placed_object_s"]
         lines.append(

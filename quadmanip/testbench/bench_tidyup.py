@@ -57,6 +57,10 @@ def summarize(trials: list[dict[str, Any]]) -> dict[str, Any]:
         "robot_services_cpu_cores": statistics.fmean(t["robot_services_cpu_cores"] for t in trials)
         if trials
         else None,
+        "falls": sum(t.get("falls", 0) for t in trials),
+        # locomotion's safety trips (legs damped, the robot lying down, then righted):
+        # short of a fall (tilt past 60 deg), yet the robot went down
+        "safety_trips": sum(t.get("controller", {}).get("trips", 0) for t in trials),
         "statuses": {t["scenario"]: t["status"] for t in trials},
     }
 

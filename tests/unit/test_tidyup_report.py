@@ -96,6 +96,10 @@ def test_summary_over_trials():
     assert s["drawers_opened_min"] == 1
     # 90 s trials: 45 s per object with two placed, 90 s with one -> median 67.5
     assert s["time_per_object_s_p50"] == pytest.approx(67.5)
+    assert s["falls"] == 0 and s["safety_trips"] == 0
+    b["falls"], b["controller"] = 1, {"trips": 3}
+    s = summarize([a, b])
+    assert s["falls"] == 1 and s["safety_trips"] == 3
 
 
 def test_one_class_seen_twice_counts_once():
