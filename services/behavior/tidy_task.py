@@ -1844,6 +1844,7 @@ class TidyTask:
             return Step.GO_TO_VIEWPOINT
         here = self._pose()
         obj, _ = min(found, key=lambda f: _dist(f[0].position, here))
+        obj = self._under_stance(obj, [o for o, _ in found])
         rec = self._record_for(obj)
         assert rec is not None
         self.target = rec
@@ -1852,6 +1853,33 @@ class TidyTask:
         if not self._drawer_ready(rec):
             return self._give_up_now(Step.CHOOSE_TARGET, f"{self._deposit()[1].name} is shut")
         return Step.APPROACH
+
+    def _under_stance(self, obj: SeenObject, found: Sequence[SeenObject]) -> SeenObject:
+        """The object to take up before table object ``obj``: another one ``found`` on the
+        floor within ``feet_box`` of the stance square to ``obj``'s table (the nearest to
+        that stance), else ``obj`` itself. Left there, navigation turns the stance off
+        square around it, and the arm reaches across the table's edge at a slant: paper-5
+        (2026-12-08, twice) stood 60 deg off square for the bowl on the living table, a
+        soup can where the square stance's feet go; every grasp was refused as needing a
+        body shift of 7-10 cm, each step to face it stopped against the table, and the bowl
+        was given up. The soup can was taken up after it, from the floor."""
+        rec = self._record_for(obj)
+        if rec is None or self._table_of(rec) is None:
+            return obj
+        heading = self._facing(rec)
+        if heading is None:
+            return obj
+        aim = self._square_target(rec, rec.position)
+        back = self._probe_for(rec).standoff
+        stance = (aim[0] - back * math.cos(heading), aim[1] - back * math.sin(heading), heading)
+        under = [
+            o
+            for o in found
+            if o.track_id != obj.track_id
+            and o.position[2] <= self.cfg.table_min_z
+            and _in_box(o.position, stance, self.cfg.feet_box)
+        ]
+        return min(under, key=lambda o: _dist(o.position, stance)) if under else obj
 
     # ------------------------------------------------------------------ one object
     def _probe_for(self, rec: ObjectRecord) -> _Probe:

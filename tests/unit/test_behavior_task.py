@@ -3513,3 +3513,31 @@ def test_a_given_up_object_is_put_down_clear_of_the_furniture_ahead() -> None:
     house.at, house.held = (2.0, 1.5, 0.0), can
     task._put_down()
     assert _calls(house, "approach") == [] and len(_calls(house, "place")) == 1
+
+
+def test_a_floor_object_where_a_table_objects_stance_stands_is_taken_up_first() -> None:
+    # paper-5, 2026-12-08 (twice): a soup can on the floor where the square stance for the
+    # bowl on the living table puts the feet; the bowl, nearer, was taken first from a
+    # stance turned 60 deg off square, and given up
+    bowl = Thing("bowl", 3, (2.88, 3.26, 0.43), on_table=True)
+    can = Thing("tomato_soup_can", 1, (2.75, 2.60, 0.05))
+    house = FakeHouse([bowl, can])
+    house.at = (3.6, 3.0, math.pi)  # the bowl 0.77 m away, the can 0.94 m
+    for t in (bowl, can):
+        house.memory[t.track_id] = SeenObject(t.track_id, t.label, t.position)
+    task = _task(house)
+    assert task._choose_target() == Step.APPROACH
+    assert task.target is not None and task.target.label == "tomato_soup_can"
+    # the can elsewhere on the floor: the nearer bowl first, as ever
+    house = FakeHouse([bowl, can])
+    house.at = (3.6, 3.0, math.pi)
+    house.memory[bowl.track_id] = SeenObject(bowl.track_id, bowl.label, bowl.position)
+    house.memory[can.track_id] = SeenObject(can.track_id, can.label, (2.2, 2.2, 0.05))
+    task = _task(house)
+    task._choose_target()
+    assert task.target is not None and task.target.label == "bowl"
+    # and the whole trial takes both
+    house = FakeHouse([bowl, can])
+    house.at = (3.6, 3.0, math.pi)
+    report = _task(house).run()
+    assert report.outcome == "done" and all(r.placed for r in report.objects)
