@@ -458,3 +458,34 @@ def test_the_configured_miss_range_of_a_small_object_is_where_the_detector_finds
     assert row["1.00"] == [2, 2] and row["3.00"][0] == 0 < row["3.00"][1]
     mem = load_config(PerceptionConfig, "perception").memory
     assert 1.0 <= mem.miss_ranges["lego"] < 3.0 and mem.miss_ranges["lego"] < mem.max_range
+
+
+def test_a_confirmed_track_goes_only_after_its_misses_span_miss_time() -> None:
+    # paper-5 (2026-12-08): a coffee can seen 43 times was dropped after three misses as
+    # the arm moved; a walk's goal later stood on it
+    mem = ObjectMemory(MemoryConfig(max_misses=3, miss_time=2.0))
+    p = np.array([1.5, 0.1, 0.05])
+    (tid,) = confirmed(mem, p)
+    last = mem.get(tid).last_seen
+    for k in range(1, 8):  # seven misses within 1.4 s: still there, confidence decaying
+        mem.update([], view(depth=depth_of(2.5)), last + 0.2 * k)
+    t = mem.get(tid)
+    assert t is not None and t.misses == 7 and mem.missed_out == []
+    low = t.confidence
+    # seen again: the misses start over and the confidence returns
+    mem.update([obs(p)], view(depth=depth_of(2.5)), last + 1.6)
+    assert mem.get(tid).misses == 0 and mem.get(tid).confidence > low
+    # not seen for 2 s: the next miss past max_misses removes it
+    t0 = last + 1.6
+    for k in range(1, 10):
+        mem.update([], view(depth=depth_of(2.5)), t0 + 0.25 * k)
+        if mem.get(tid) is None:
+            break
+    assert mem.get(tid) is None and 0.25 * k >= 2.0
+    # a tentative track still goes at its first miss
+    q = np.array([1.2, -0.3, 0.05])
+    mem.update([obs(q)], view(), 10.0)
+    mem.update([], view(depth=depth_of(2.5)), 10.1)
+    assert mem.tracks(confirmed_only=False) == []
+    with pytest.raises(ValueError, match="miss_time"):
+        MemoryConfig(miss_time=-1.0)
