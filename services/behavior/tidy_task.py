@@ -502,8 +502,8 @@ class TaskConfig:
     # the arm's way to it) lies this far outside every piece of furniture of the places
     # file; the robot backs off (in put_down_back_step steps, up to put_down_back_max)
     # until it does. paper-5 (2026-12-08): a coffee can given up at the tray was put down
-    # 0.36 m ahead, under the deposit table's top: the arm met the top and the robot
-    # pitched 34 deg nose down and fell.
+    # 0.36 m ahead, under the deposit table's top: the arm met the top, the robot pitched
+    # 34 deg nose down and lay down (locomotion's safety trip).
     put_down_clearance: float = 0.15
     put_down_back_step: float = 0.2
     put_down_back_max: float = 1.0
